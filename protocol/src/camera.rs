@@ -33,12 +33,7 @@ pub struct CameraModel {
 
 impl CameraModel {
     /// A checked camera: non-empty size, positive focal lengths, finite values.
-    pub fn new(
-        width: u32,
-        height: u32,
-        [fx, fy, cx, cy]: [f64; 4],
-        distortion: [f64; 5],
-    ) -> Result<Self, CameraError> {
+    pub fn new(width: u32, height: u32, [fx, fy, cx, cy]: [f64; 4], distortion: [f64; 5]) -> Result<Self, CameraError> {
         if width == 0 || height == 0 {
             return Err(CameraError::EmptyImage { width, height });
         }
@@ -123,7 +118,7 @@ impl CameraModel {
 
     /// Pixel (distorted, as captured) of a camera-frame point; `None` behind the camera.
     pub fn project(&self, point_cam: &Point3<f64>) -> Option<Point2<f64>> {
-        if !(point_cam.z > 0.0) {
+        if point_cam.z.is_nan() || point_cam.z <= 0.0 {
             return None;
         }
         let d = self.distort_normalized(Vector2::new(point_cam.x / point_cam.z, point_cam.y / point_cam.z));

@@ -1,0 +1,41 @@
+//! `outlet`: the command line of the outlet perception sidecar.
+
+mod font;
+mod render_cmd;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "outlet", version, about = "Finds wall outlets' holes in camera images and gives their 3D positions")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render simulated outlet images with exact ground truth (image, JSON, camera_info YAML, PLY cloud).
+    Render(render_cmd::RenderArgs),
+    /// Render a contact sheet: a few images of every scenario in one PNG.
+    Sheet(render_cmd::SheetArgs),
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Render(args) => render_cmd::render(args),
+        Command::Sheet(args) => render_cmd::sheet(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("outlet: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
