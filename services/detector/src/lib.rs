@@ -1,0 +1,52 @@
+//! Outlet detection after Eruhimov & Meeussen (section III of the paper), as
+//! named stages on plain data: `candidates` (dark blobs at several thresholds,
+//! kept by contrast), `descriptor` (one-way descriptor: power / ground /
+//! background), `hashing` (geometric hashing: the one consistent outlet, or none).
+
+pub mod candidates;
+pub mod descriptor;
+pub mod hashing;
+
+use nalgebra::Point2;
+use serde::{Deserialize, Serialize};
+
+/// What a hole candidate is taken for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Class {
+    Power,
+    Ground,
+    Background,
+}
+
+impl From<outlet_protocol::HoleKind> for Class {
+    fn from(kind: outlet_protocol::HoleKind) -> Self {
+        match kind {
+            outlet_protocol::HoleKind::Power => Class::Power,
+            outlet_protocol::HoleKind::Ground => Class::Ground,
+        }
+    }
+}
+
+/// A small dark region surrounded by brighter ones: maybe a hole.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Candidate {
+    /// Centre in the image as captured (OpenCV pixel convention).
+    pub centre: Point2<f64>,
+    /// Bounding box width and height (pixels).
+    pub size: [u32; 2],
+    /// Area (pixels) of the component.
+    pub area: u32,
+    /// Contrast ratio r_C of the paper's equation (1).
+    pub contrast: f32,
+    /// The threshold level at which the component was taken.
+    pub level: u8,
+}
+
+/// Grey image for detection: the brightest channel (HSV value). Holes are dark in
+/// every channel while plates of any colour are bright in at least one, so this
+/// keeps hole contrast on orange, brown or white plates alike.
+pub fn grey_of(image: &image::RgbImage) -> image::GrayImage {
+    let (w, h) = image.dimensions();
+    let data = image.as_raw().chunks_exact(3).map(|p| p[0].max(p[1]).max(p[2])).collect();
+    image::GrayImage::from_raw(w, h, data).unwrap_or_else(|| image::GrayImage::new(w, h))
+}
