@@ -29,9 +29,9 @@ pub struct CameraArgs {
     /// Principal point y (default: the image centre).
     #[arg(long)]
     pub cy: Option<f64>,
-    /// plumb_bob distortion k1,k2,p1,p2,k3.
-    #[arg(long, value_delimiter = ',', num_args = 5, default_values_t = [-0.06, 0.03, 0.0, 0.0, 0.0])]
-    pub distortion: Vec<f64>,
+    /// plumb_bob distortion "k1,k2,p1,p2,k3".
+    #[arg(long, default_value = "-0.06,0.03,0,0,0", allow_hyphen_values = true)]
+    pub distortion: String,
     /// A ROS camera_info YAML: overrides the size and intrinsics above.
     #[arg(long)]
     pub camera: Option<PathBuf>,
@@ -45,11 +45,15 @@ impl CameraArgs {
         let f = self.focal.unwrap_or(525.0 * self.width as f64 / 640.0);
         let cx = self.cx.unwrap_or((self.width as f64 - 1.0) / 2.0);
         let cy = self.cy.unwrap_or((self.height as f64 - 1.0) / 2.0);
-        let d: [f64; 5] = self
+        let values: Vec<f64> = self
             .distortion
-            .as_slice()
-            .try_into()
-            .map_err(|_| anyhow::anyhow!("--distortion needs 5 values k1,k2,p1,p2,k3"))?;
+            .split(',')
+            .map(|v| v.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .with_context(|| format!("--distortion {:?} is not numbers", self.distortion))?;
+        let d: [f64; 5] = values.as_slice().try_into().map_err(|_| {
+            anyhow::anyhow!("--distortion {:?} needs 5 values k1,k2,p1,p2,k3, got {}", self.distortion, values.len())
+        })?;
         Ok(CameraModel::new(self.width, self.height, [f, f, cx, cy], d)?)
     }
 }
