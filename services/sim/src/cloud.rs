@@ -23,13 +23,13 @@ impl Prepared<'_> {
                 let (q0, qt) = (local(0.0), local(zt));
                 for face in faces {
                     let (x0, y0) = (q0[0] - face.centre[0], q0[1] - face.centre[1]);
-                    if face_sd(x0, y0) < 0.0 {
-                        if Opening::ALL.iter().any(|o| o.sd(x0, y0) < 0.0) {
+                    if face_sd(x0, y0, &face.shape) < 0.0 {
+                        if Opening::ALL.iter().any(|o| o.sd(x0, y0, face.shape.t_slot) < 0.0) {
                             return None;
                         }
                         return Some(0.0);
                     }
-                    if face_sd(qt[0] - face.centre[0], qt[1] - face.centre[1]) < 0.0 {
+                    if face_sd(qt[0] - face.centre[0], qt[1] - face.centre[1], &face.shape) < 0.0 {
                         return Some(zt * 0.5);
                     }
                 }

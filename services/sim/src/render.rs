@@ -8,14 +8,14 @@
 
 use crate::rng::SimRng;
 use crate::scene::{Crack, Insert, Plate, Rgb, Scene, WALL_Z_MM};
-use crate::shapes::{FACE_HALF_HEIGHT_MM, FACE_RADIUS_MM, Opening, box_sd, face_sd, segment_distance};
+use crate::shapes::{FaceShape, Opening, box_sd, face_sd, segment_distance};
 use image::RgbImage;
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 
 /// Depth of a receptacle opening behind the face (mm).
 const HOLE_DEPTH_MM: f64 = 7.0;
-/// How fast light fades down a hole's side wall (mm).
-const HOLE_FADE_MM: f64 = 1.6;
+/// The gap between a face and the plate's opening around it (mm).
+const FACE_GAP_MM: f64 = 0.6;
 /// Receptacle face rim width (mm).
 const RIM_MM: f64 = 0.9;
 /// Keystone jack module and its opening, half sizes (mm).
@@ -271,12 +271,13 @@ impl<'a> Prepared<'a> {
             for (f, face) in faces.iter().enumerate() {
                 let id = id + 16 * (f as u32 + 1);
                 let (x0, y0) = (q0[0] - face.centre[0], q0[1] - face.centre[1]);
-                let sd_top = face_sd(x0, y0);
+                let sd_top = face_sd(x0, y0, &face.shape);
                 if sd_top < 0.0 {
                     for (k, opening) in Opening::ALL.iter().enumerate() {
                         let [ox, oy] = opening.centre();
-                        let [ex, ey] = opening.half_extent();
-                        if (x0 - ox).abs() > ex || (y0 - oy).abs() > ey || opening.sd(x0, y0) >= 0.0 {
+                        let t_slot = face.shape.t_slot;
+                        let [ex, ey] = opening.half_extent(t_slot);
+                        if (x0 - ox).abs() > ex || (y0 - oy).abs() > ey || opening.sd(x0, y0, t_slot) >= 0.0 {
                             continue;
                         }
                         return Some(self.inside_opening(
@@ -284,13 +285,13 @@ impl<'a> Prepared<'a> {
                             face.colour,
                             Ray { p0: [x0, y0], slope: ray.slope },
                             [ox, oy],
-                            |x, y| opening.sd(x, y) < 0.0,
+                            |x, y| opening.sd(x, y, t_slot) < 0.0,
                             *opening != Opening::Ground,
                         ));
                     }
                     if sd_top > -RIM_MM {
                         // The rounded rim slopes away from the face's centre.
-                        let out = rim_direction(x0, y0);
+                        let out = rim_direction(x0, y0, &face.shape);
                         let t = (1.0 + sd_top / RIM_MM) as f32; // 0 inner edge .. 1 outer edge
                         let s = 0.25 + 0.6 * t;
                         let albedo = scale(face.colour, 1.0 - face.rim * t);
@@ -311,9 +312,20 @@ impl<'a> Prepared<'a> {
                     });
                 }
                 let (xt, yt) = (qt[0] - face.centre[0], qt[1] - face.centre[1]);
-                if face_sd(xt, yt) < 0.0 {
+                let sd_side = face_sd(xt, yt, &face.shape);
+                if sd_side < FACE_GAP_MM && sd_side >= 0.0 {
+                    // The dark gap between the face and the plate's opening.
+                    return Some(Hit {
+                        id: id + 3,
+                        albedo: scale(plate.colour, 0.12),
+                        lit: Lit::Inside,
+                        gloss: 0.0,
+                        shininess,
+                    });
+                }
+                if sd_side < 0.0 {
                     // The face's vertical side, seen obliquely.
-                    let out = rim_direction(xt, yt);
+                    let out = rim_direction(xt, yt, &face.shape);
                     return Some(Hit {
                         id: id + 2,
                         albedo: scale(face.colour, 1.0 - face.rim),
@@ -479,7 +491,13 @@ impl<'a> Prepared<'a> {
         };
         let (fx, fy) = at(HOLE_DEPTH_MM);
         if inside(fx, fy) {
-            return Hit { id, albedo: scale(colour, 0.04), lit: Lit::Inside, gloss: 0.0, shininess: 1.0 };
+            return Hit {
+                id,
+                albedo: scale(colour, self.scene.hole_floor),
+                lit: Lit::Inside,
+                gloss: 0.0,
+                shininess: 1.0,
+            };
         }
         let (mut lo, mut hi) = (0.0, HOLE_DEPTH_MM);
         for _ in 0..7 {
@@ -488,7 +506,7 @@ impl<'a> Prepared<'a> {
             if inside(x, y) { lo = mid } else { hi = mid }
         }
         let depth = 0.5 * (lo + hi);
-        let mut shade = 0.4 * (-depth / HOLE_FADE_MM).exp() as f32 + 0.03;
+        let mut shade = 0.4 * (-depth / self.scene.hole_fade_mm).exp() as f32 + self.scene.hole_floor;
         // The brass contacts a few mm in, towards the slot's ends, catch the light.
         let (_, exit_y) = at(depth);
         if glints && self.scene.hole_glint > 0.0 && (2.2..3.0).contains(&depth) && (exit_y - centre[1]).abs() > 2.0 {
@@ -536,7 +554,7 @@ impl<'a> Prepared<'a> {
                 let q = [p[0] + s * to_light[0] - plate.centre[0], p[1] + s * to_light[1] - plate.centre[1]];
                 let mut lit = 1.0f32;
                 for face in faces {
-                    let sd = face_sd(q[0] - face.centre[0], q[1] - face.centre[1]);
+                    let sd = face_sd(q[0] - face.centre[0], q[1] - face.centre[1], &face.shape);
                     lit = lit.min(smoothstep(-1.0, 1.0, sd / (softness * zt + 0.2)) as f32);
                 }
                 lit
@@ -629,9 +647,9 @@ fn on_crack(crack: &Crack, q: [f64; 2]) -> bool {
 }
 
 #[inline]
-fn rim_direction(x: f64, y: f64) -> [f64; 2] {
+fn rim_direction(x: f64, y: f64, shape: &FaceShape) -> [f64; 2] {
     // Near the flat top and bottom the rim faces straight up or down.
-    if FACE_HALF_HEIGHT_MM - y.abs() < FACE_RADIUS_MM - (x * x + y * y).sqrt() {
+    if shape.half_height - y.abs() < shape.radius - (x * x + y * y).sqrt() {
         [0.0, y.signum()]
     } else {
         let r = (x * x + y * y).sqrt().max(1e-9);

@@ -171,6 +171,10 @@ pub fn sample_scene(scenario: &str, seed: u64, index: u64, camera: &CameraModel)
     let hole_glint =
         if light_rng.chance(if style.specular { 0.6 } else { 0.25 }) { light_rng.range(0.3, 1.0) as f32 } else { 0.0 };
 
+    // Deep narrow holes look black; shallow or wide ones show their walls.
+    let hole_fade_mm = light_rng.range(1.0, 2.6);
+    let hole_floor = light_rng.range(0.02, 0.15) as f32;
+
     let mut spot_rng = rng.fork(5);
     let spots = sample_spots(&mut spot_rng, &plates[0], main_kind);
     let wall_colour = pick_colour(&mut spot_rng, &WALLS, 0.1);
@@ -189,6 +193,8 @@ pub fn sample_scene(scenario: &str, seed: u64, index: u64, camera: &CameraModel)
         light,
         occluders,
         hole_glint,
+        hole_fade_mm,
+        hole_floor,
         sensor,
         stereo: StereoModel::default(),
         noise_seed: rng.next_u64(),
@@ -217,6 +223,11 @@ fn make_plate(
         colour: screw_colour,
     };
     let rim = rng.range(0.1, 0.4) as f32;
+    let shape = crate::shapes::FaceShape {
+        radius: rng.range(17.0, 19.5),
+        half_height: rng.range(12.8, 14.2),
+        t_slot: rng.chance(0.2),
+    };
     let (insert, screws) = match kind {
         Kind::Duplex(columns) => {
             let xs: Vec<f64> = if columns == 2 { vec![-GANG_PITCH_MM / 2.0, GANG_PITCH_MM / 2.0] } else { vec![0.0] };
@@ -225,6 +236,7 @@ fn make_plate(
                 .flat_map(|&x| {
                     [-DUPLEX_PITCH_MM / 2.0, DUPLEX_PITCH_MM / 2.0].map(|y| Face {
                         centre: [x, y],
+                        shape,
                         colour: face_colour,
                         rim,
                     })
@@ -233,7 +245,7 @@ fn make_plate(
             (Insert::Receptacles(faces), xs.iter().map(|&x| screw(rng, x, 0.0)).collect())
         }
         Kind::Single => (
-            Insert::Receptacles(vec![Face { centre: [0.0, 0.0], colour: face_colour, rim }]),
+            Insert::Receptacles(vec![Face { centre: [0.0, 0.0], shape, colour: face_colour, rim }]),
             vec![screw(rng, 0.0, -26.0), screw(rng, 0.0, 26.0)],
         ),
         Kind::Toggle => {

@@ -18,6 +18,7 @@ pub const WALL_Z_MM: f64 = FACE_OFFSET_MM;
 #[derive(Debug, Clone)]
 pub struct Face {
     pub centre: [f64; 2],
+    pub shape: crate::shapes::FaceShape,
     pub colour: Rgb,
     /// Darkness of the sloped rim at the face's edge (0 = none).
     pub rim: f32,
@@ -170,6 +171,10 @@ pub struct Scene {
     pub occluders: Vec<Occluder>,
     /// Strength of the metal glint inside the slots (0 = none).
     pub hole_glint: f32,
+    /// How fast light fades down a hole's side wall (mm), and the reflectance of
+    /// its floor relative to the face.
+    pub hole_fade_mm: f64,
+    pub hole_floor: f32,
     pub sensor: Sensor,
     pub stereo: StereoModel,
     /// Seed of the per-pixel noise and of the cloud.

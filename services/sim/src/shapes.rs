@@ -20,13 +20,32 @@ pub fn box_sd(x: f64, y: f64, hx: f64, hy: f64) -> f64 {
     outside + dx.max(dy).min(0.0)
 }
 
-/// Signed distance to a receptacle face centred at the origin: a disc cut by two
-/// horizontal lines (approximate outside the shape, exact sign).
-#[inline]
-pub fn face_sd(x: f64, y: f64) -> f64 {
-    let disc = (x * x + y * y).sqrt() - FACE_RADIUS_MM;
-    disc.max(y.abs() - FACE_HALF_HEIGHT_MM)
+/// The outline of a receptacle face: a disc cut by two horizontal lines (makers
+/// differ), and whether its neutral slot is the T of a 20 A receptacle (5-20R).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FaceShape {
+    pub radius: f64,
+    pub half_height: f64,
+    pub t_slot: bool,
 }
+
+impl Default for FaceShape {
+    fn default() -> Self {
+        Self { radius: FACE_RADIUS_MM, half_height: FACE_HALF_HEIGHT_MM, t_slot: false }
+    }
+}
+
+/// Signed distance to a receptacle face centred at the origin (approximate outside
+/// the shape, exact sign).
+#[inline]
+pub fn face_sd(x: f64, y: f64, shape: &FaceShape) -> f64 {
+    let disc = (x * x + y * y).sqrt() - shape.radius;
+    disc.max(y.abs() - shape.half_height)
+}
+
+/// The sideways branch of a 5-20R neutral slot: towards the plate's edge, at the
+/// slot's end nearer the ground hole (mm, from the slot's centre).
+const T_BRANCH_LENGTH_MM: f64 = 3.0;
 
 /// Which opening of a receptacle a point (receptacle coordinates, mm) falls in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -51,11 +70,19 @@ impl Opening {
 
     /// Signed distance from the opening's outline (mm), point in receptacle coordinates.
     #[inline]
-    pub fn sd(self, x: f64, y: f64) -> f64 {
+    pub fn sd(self, x: f64, y: f64, t_slot: bool) -> f64 {
         let [cx, cy] = self.centre();
         let (dx, dy) = (x - cx, y - cy);
         match self {
-            Opening::Neutral => box_sd(dx, dy, NEUTRAL_SLOT_MM[0] / 2.0, NEUTRAL_SLOT_MM[1] / 2.0),
+            Opening::Neutral => {
+                let (hw, hl) = (NEUTRAL_SLOT_MM[0] / 2.0, NEUTRAL_SLOT_MM[1] / 2.0);
+                let slot = box_sd(dx, dy, hw, hl);
+                if !t_slot {
+                    return slot;
+                }
+                let branch = box_sd(dx + T_BRANCH_LENGTH_MM / 2.0, dy - (hl - hw), hw + T_BRANCH_LENGTH_MM / 2.0, hw);
+                slot.min(branch)
+            }
             Opening::Hot => box_sd(dx, dy, HOT_SLOT_MM[0] / 2.0, HOT_SLOT_MM[1] / 2.0),
             Opening::Ground => {
                 let disc = (dx * dx + dy * dy).sqrt() - GROUND_DIAMETER_MM / 2.0;
@@ -65,9 +92,10 @@ impl Opening {
         }
     }
 
-    /// Half extent of the opening's bounding box (mm), for quick rejection.
-    pub fn half_extent(self) -> [f64; 2] {
+    /// Half extent of the opening's bounding box about its centre (mm), for quick rejection.
+    pub fn half_extent(self, t_slot: bool) -> [f64; 2] {
         match self {
+            Opening::Neutral if t_slot => [NEUTRAL_SLOT_MM[0] / 2.0 + T_BRANCH_LENGTH_MM, NEUTRAL_SLOT_MM[1] / 2.0],
             Opening::Neutral => [NEUTRAL_SLOT_MM[0] / 2.0, NEUTRAL_SLOT_MM[1] / 2.0],
             Opening::Hot => [HOT_SLOT_MM[0] / 2.0, HOT_SLOT_MM[1] / 2.0],
             Opening::Ground => [GROUND_DIAMETER_MM / 2.0, GROUND_DIAMETER_MM / 2.0],
@@ -93,11 +121,19 @@ mod tests {
     fn opening_centres_are_inside_and_the_ground_flat_cuts_towards_the_slots() {
         for o in Opening::ALL {
             let [x, y] = o.centre();
-            assert!(o.sd(x, y) < -0.9, "{o:?}");
+            assert!(o.sd(x, y, false) < -0.9 && o.sd(x, y, true) < -0.9, "{o:?}");
         }
         let [gx, gy] = Opening::Ground.centre();
-        assert!(Opening::Ground.sd(gx, gy + 2.3) < 0.0, "round side away from the slots");
-        assert!(Opening::Ground.sd(gx, gy - 2.3) > 0.0, "flat side towards the slots");
-        assert!(face_sd(0.0, 0.0) < -10.0 && face_sd(0.0, 15.0) > 0.0 && face_sd(18.0, 0.0) > 0.0);
+        assert!(Opening::Ground.sd(gx, gy + 2.3, false) < 0.0, "round side away from the slots");
+        assert!(Opening::Ground.sd(gx, gy - 2.3, false) > 0.0, "flat side towards the slots");
+        let [nx, ny] = Opening::Neutral.centre();
+        // The T's branch points away from the hot slot, near the ground end.
+        assert!(
+            Opening::Neutral.sd(nx - 3.0, ny + 3.3, true) < 0.0 && Opening::Neutral.sd(nx - 3.0, ny + 3.3, false) > 0.0
+        );
+        let shape = FaceShape::default();
+        assert!(
+            face_sd(0.0, 0.0, &shape) < -10.0 && face_sd(0.0, 15.0, &shape) > 0.0 && face_sd(18.0, 0.0, &shape) > 0.0
+        );
     }
 }
