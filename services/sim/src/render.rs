@@ -313,7 +313,7 @@ impl<'a> Prepared<'a> {
                 }
                 let (xt, yt) = (qt[0] - face.centre[0], qt[1] - face.centre[1]);
                 let sd_side = face_sd(xt, yt, &face.shape);
-                if sd_side < FACE_GAP_MM && sd_side >= 0.0 {
+                if (0.0..FACE_GAP_MM).contains(&sd_side) {
                     // The dark gap between the face and the plate's opening.
                     return Some(Hit {
                         id: id + 3,
