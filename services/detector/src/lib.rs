@@ -6,6 +6,7 @@
 pub mod candidates;
 pub mod descriptor;
 pub mod hashing;
+pub mod refine;
 
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};

@@ -1,0 +1,229 @@
+//! Beyond the paper: sub-pixel hole centres. Each hole's known outline (a slot or
+//! a round ground hole), mapped into the image by the local linearisation of the
+//! outlet-to-image map, is fitted to the pixels around it: the image is modelled as
+//! the face's level outside the outline and a linear ramp inside it (the hole's
+//! side wall on one side, its dark floor on the other, as the viewing angle
+//! shows them). The outline's offset that best explains the pixels is the centre.
+
+use image::GrayImage;
+use nalgebra::{Matrix2, Matrix4, Point2, Vector2, Vector4};
+use outlet_protocol::geometry::{GROUND_DIAMETER_MM, HOT_SLOT_MM, HoleKind, NEUTRAL_SLOT_MM, SLOT_PITCH_MM};
+
+/// The outline of a hole in the outlet plane (mm, centred on the hole's centre).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum HoleShape {
+    /// A blade slot: width across x, length along y of the outlet frame.
+    Slot { width_mm: f64, length_mm: f64 },
+    /// A round hole, with a flat this far from its centre towards -y (the slots).
+    Round { diameter_mm: f64, flat_mm: f64 },
+}
+
+impl HoleShape {
+    /// The outlines of a US geometry's holes: in each receptacle (neutral, hot,
+    /// ground) the power hole further left is the long neutral slot.
+    pub fn us_outlines(geometry: &outlet_protocol::OutletGeometry) -> Vec<HoleShape> {
+        let holes = &geometry.holes;
+        holes
+            .iter()
+            .map(|h| match h.kind {
+                HoleKind::Ground => HoleShape::Round { diameter_mm: GROUND_DIAMETER_MM, flat_mm: 1.6 },
+                HoleKind::Power => {
+                    // The other slot of the same receptacle: same row, a pitch away.
+                    let partner = holes.iter().find(|o| {
+                        o.kind == HoleKind::Power
+                            && (o.position_mm[1] - h.position_mm[1]).abs() < 0.5
+                            && ((o.position_mm[0] - h.position_mm[0]).abs() - SLOT_PITCH_MM).abs() < 1.0
+                    });
+                    let neutral = partner.is_none_or(|o| o.position_mm[0] > h.position_mm[0]);
+                    let [width_mm, length_mm] = if neutral { NEUTRAL_SLOT_MM } else { HOT_SLOT_MM };
+                    HoleShape::Slot { width_mm, length_mm }
+                }
+            })
+            .collect()
+    }
+
+    /// Signed distance to the outline (mm, negative inside).
+    #[inline]
+    fn sd(&self, q: Vector2<f64>) -> f64 {
+        match *self {
+            HoleShape::Slot { width_mm, length_mm } => {
+                let (dx, dy) = (q.x.abs() - width_mm / 2.0, q.y.abs() - length_mm / 2.0);
+                (dx.max(0.0).powi(2) + dy.max(0.0).powi(2)).sqrt() + dx.max(dy).min(0.0)
+            }
+            HoleShape::Round { diameter_mm, flat_mm } => (q.norm() - diameter_mm / 2.0).max(-q.y - flat_mm),
+        }
+    }
+
+    /// Half extent (mm) of a box around the outline.
+    fn half_extent(&self) -> [f64; 2] {
+        match *self {
+            HoleShape::Slot { width_mm, length_mm } => [width_mm / 2.0, length_mm / 2.0],
+            HoleShape::Round { diameter_mm, .. } => [diameter_mm / 2.0, diameter_mm / 2.0],
+        }
+    }
+}
+
+/// Parameters of the sub-pixel fit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RefineParams {
+    /// Face around the outline taken into the fit (mm).
+    pub margin_mm: f64,
+    /// Gauss-Newton iterations on the offset.
+    pub iterations: usize,
+    /// The fit is refused if it moves the centre further than this (pixels).
+    pub max_shift_px: f64,
+}
+
+impl Default for RefineParams {
+    fn default() -> Self {
+        Self { margin_mm: 1.8, iterations: 10, max_shift_px: 3.0 }
+    }
+}
+
+/// A refined hole centre.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Refined {
+    pub centre: Point2<f64>,
+    /// RMS of the model's residual (grey levels).
+    pub rms: f64,
+    /// Contrast between the face and the opening (grey levels): small means unsure.
+    pub contrast: f64,
+}
+
+/// Fits one hole's outline around `guess`. `mm_to_px` maps outlet-plane mm offsets
+/// to image pixel offsets at the hole (the local Jacobian of the outlet-to-image
+/// map, distortion included). `None` when the window leaves the image or the fit
+/// does not converge to a dark opening in a bright face.
+pub fn refine_hole(
+    grey: &GrayImage,
+    guess: Point2<f64>,
+    mm_to_px: &Matrix2<f64>,
+    shape: HoleShape,
+    params: &RefineParams,
+) -> Option<Refined> {
+    // First converge with plain least squares (robust weights would ignore the
+    // very pixels that pull the outline into place), then re-centre the window and
+    // let Huber weights discount what the outline does not explain.
+    let rough = fit(grey, guess, mm_to_px, shape, params, false)?;
+    let fine = fit(grey, rough.centre, mm_to_px, shape, params, true)?;
+    if (fine.centre - guess).norm() > params.max_shift_px { None } else { Some(fine) }
+}
+
+fn fit(
+    grey: &GrayImage,
+    guess: Point2<f64>,
+    mm_to_px: &Matrix2<f64>,
+    shape: HoleShape,
+    params: &RefineParams,
+    robust: bool,
+) -> Option<Refined> {
+    let px_to_mm = mm_to_px.try_inverse()?;
+    let [ex, ey] = shape.half_extent();
+    let (ex, ey) = (ex + params.margin_mm, ey + params.margin_mm);
+    // Pixel window covering the outline plus margin, wherever it is turned.
+    let corners = [[-ex, -ey], [ex, -ey], [-ex, ey], [ex, ey]].map(|[x, y]| mm_to_px * Vector2::new(x, y));
+    let rx = corners.iter().map(|c| c.x.abs()).fold(0.0, f64::max).ceil() as i64 + 1;
+    let ry = corners.iter().map(|c| c.y.abs()).fold(0.0, f64::max).ceil() as i64 + 1;
+    let (gx, gy) = (guess.x.round() as i64, guess.y.round() as i64);
+    let (w, h) = (grey.width() as i64, grey.height() as i64);
+    if !guess.x.is_finite() || !guess.y.is_finite() || gx - rx < 0 || gy - ry < 0 || gx + rx >= w || gy + ry >= h {
+        return None;
+    }
+    if rx * ry > 40_000 {
+        return None; // a hole that large is not a hole at this scale
+    }
+    // Pixels inside the elliptic window (in mm: within the margin box).
+    let mut pixels: Vec<(Vector2<f64>, f64)> = Vec::with_capacity(((2 * rx + 1) * (2 * ry + 1)) as usize);
+    for y in gy - ry..=gy + ry {
+        for x in gx - rx..=gx + rx {
+            let d = Vector2::new(x as f64 - guess.x, y as f64 - guess.y);
+            let q = px_to_mm * d;
+            if q.x.abs() <= ex && q.y.abs() <= ey {
+                pixels.push((d, grey.get_pixel(x as u32, y as u32)[0] as f64));
+            }
+        }
+    }
+    if pixels.len() < 12 {
+        return None;
+    }
+    // A pixel's width in mm, for the coverage ramp across the outline.
+    let pixel_mm = px_to_mm.determinant().abs().sqrt();
+    // Coverage (smooth in the offset, so that its derivative is useful) and mm
+    // coordinates of each pixel for the outline offset `t` (px).
+    let coverage = |t: Vector2<f64>, out: &mut Vec<(f64, Vector2<f64>)>| {
+        out.clear();
+        for (d, _) in &pixels {
+            let q = px_to_mm * (d - t);
+            out.push(((0.5 - shape.sd(q) / pixel_mm).clamp(0.0, 1.0), q));
+        }
+    };
+    // Best linear parameters (face level a, inside level b, ramp cx, cy) for an
+    // offset, and the residual vector.
+    let solve = |cov: &[(f64, Vector2<f64>)], weights: &[f64]| -> Option<(Vector4<f64>, Vec<f64>)> {
+        let mut ata = Matrix4::zeros();
+        let mut atb = Vector4::zeros();
+        for (((m, q), (_, v)), w) in cov.iter().zip(&pixels).zip(weights) {
+            // Without the ramp while the outline is still far off: a ramp inside a
+            // misplaced outline would mimic the shift and stall the fit.
+            let ramp = if robust { 1.0 } else { 0.0 };
+            let row = Vector4::new(1.0 - m, *m, m * q.x * ramp, m * q.y * ramp);
+            ata += row * row.transpose() * *w;
+            atb += row * *v * *w;
+        }
+        ata += Matrix4::identity() * 1e-6;
+        let p = ata.cholesky()?.solve(&atb);
+        let r = cov
+            .iter()
+            .zip(&pixels)
+            .map(|((m, q), (_, v))| v - (p[0] * (1.0 - m) + m * (p[1] + p[2] * q.x + p[3] * q.y)))
+            .collect();
+        Some((p, r))
+    };
+    let mut t = Vector2::zeros();
+    // Huber weights: what the outline does not explain (a T-slot's branch, a dark
+    // spot, a glint) should not drag the centre.
+    let mut weights = vec![1.0; pixels.len()];
+    let mut cov = Vec::with_capacity(pixels.len());
+    let mut cov_dx = Vec::with_capacity(pixels.len());
+    let mut cov_dy = Vec::with_capacity(pixels.len());
+    let step = 0.05;
+    for _ in 0..params.iterations {
+        coverage(t, &mut cov);
+        let (p, r) = solve(&cov, &weights)?;
+        let mut sorted: Vec<f64> = r.iter().map(|v| v.abs()).collect();
+        sorted.sort_by(f64::total_cmp);
+        let k = 1.5 * (sorted[sorted.len() / 2] / 0.6745).max(1.0);
+        if robust {
+            for (w, v) in weights.iter_mut().zip(&r) {
+                *w = if v.abs() <= k { 1.0 } else { k / v.abs() };
+            }
+        }
+        coverage(t + Vector2::new(step, 0.0), &mut cov_dx);
+        coverage(t + Vector2::new(0.0, step), &mut cov_dy);
+        // d(model)/dt by finite differences of the coverage, linear parameters held.
+        let model = |(m, q): &(f64, Vector2<f64>)| p[0] * (1.0 - m) + m * (p[1] + p[2] * q.x + p[3] * q.y);
+        let mut jtj = Matrix2::zeros();
+        let mut jtr = Vector2::zeros();
+        for i in 0..pixels.len() {
+            let base = model(&cov[i]);
+            let j = Vector2::new((model(&cov_dx[i]) - base) / step, (model(&cov_dy[i]) - base) / step);
+            jtj += j * j.transpose() * weights[i];
+            jtr += j * r[i] * weights[i];
+        }
+        let delta = (jtj + Matrix2::identity() * 1e-9).try_inverse()? * jtr;
+        let delta = if delta.norm() > 1.0 { delta / delta.norm() } else { delta };
+        t += delta;
+        if delta.norm() < 0.005 {
+            break;
+        }
+    }
+    coverage(t, &mut cov);
+    let (p, r) = solve(&cov, &weights)?;
+    let rms = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
+    // Mean level inside the outline against the face's.
+    let contrast = p[0] - p[1];
+    if t.norm() > params.max_shift_px || contrast <= 0.0 || !t.x.is_finite() || !t.y.is_finite() {
+        return None;
+    }
+    Some(Refined { centre: guess + t, rms, contrast })
+}
