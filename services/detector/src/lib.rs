@@ -5,8 +5,10 @@
 
 pub mod candidates;
 pub mod descriptor;
+pub mod detect;
 pub mod hashing;
 pub mod refine;
+pub mod template;
 
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};

@@ -1,7 +1,10 @@
 //! `outlet`: the command line of the outlet perception sidecar.
 
+mod detect_cmd;
+mod eval_cmd;
 mod font;
 mod render_cmd;
+mod templates;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -19,6 +22,12 @@ enum Command {
     Render(render_cmd::RenderArgs),
     /// Render a contact sheet: a few images of every scenario in one PNG.
     Sheet(render_cmd::SheetArgs),
+    /// Find the outlet's holes in images (CONTRACT.md).
+    Detect(detect_cmd::DetectArgs),
+    /// Train a template from one labelled photograph.
+    Train(detect_cmd::TrainArgs),
+    /// Detection over rendered scenarios: the paper's Table I, timings, rates by view.
+    Eval(eval_cmd::EvalArgs),
 }
 
 fn main() -> ExitCode {
@@ -30,6 +39,9 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Render(args) => render_cmd::render(args),
         Command::Sheet(args) => render_cmd::sheet(args),
+        Command::Detect(args) => detect_cmd::detect(args),
+        Command::Train(args) => detect_cmd::train(args),
+        Command::Eval(args) => eval_cmd::eval(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,282 @@
+//! The detector: the paper's stages in order (`candidates` → `classify` → `hash`)
+//! and what goes beyond it (`refine`: sub-pixel holes, and a final check that the
+//! refined holes lie where one outlet plane puts them).
+
+use crate::candidates::{CandidateParams, find_candidates};
+use crate::hashing::{HashParams, HashTable, find_outlet};
+use crate::refine::{HoleShape, RefineParams, refine_hole};
+use crate::template::Template;
+use crate::{Candidate, Class, grey_of};
+use image::{GrayImage, RgbImage};
+use nalgebra::{Matrix2, Matrix3, Point2, Vector2, Vector3};
+use outlet_protocol::{CameraModel, HoleKind};
+use std::time::Instant;
+
+/// Parameters of every stage; `Default` is the paper's where it gives them.
+#[derive(Debug, Clone)]
+pub struct DetectorParams {
+    pub candidates: CandidateParams,
+    pub hash: HashParams,
+    pub refine: RefineParams,
+    /// Candidates classified at most (the most contrasted first).
+    pub max_candidates: usize,
+    /// After refinement the holes must fit one plane's homography to this RMS
+    /// (pixels) or the outlet is refused: the last guard against false alarms.
+    pub max_plane_rms_px: f64,
+}
+
+impl Default for DetectorParams {
+    fn default() -> Self {
+        Self {
+            candidates: CandidateParams::default(),
+            hash: HashParams::default(),
+            refine: RefineParams::default(),
+            max_candidates: 400,
+            max_plane_rms_px: 1.5,
+        }
+    }
+}
+
+/// One hole of a found outlet.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DetectedHole {
+    pub kind: HoleKind,
+    /// In the image as captured (distorted), OpenCV convention.
+    pub pixel: Point2<f64>,
+    /// Whether the sub-pixel fit found this hole (otherwise its place is predicted
+    /// from the other holes).
+    pub refined: bool,
+}
+
+/// A found outlet.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Detection {
+    /// Every hole of the template, in template order.
+    pub holes: Vec<DetectedHole>,
+    /// Template holes matched by a same-class candidate (the paper's score S).
+    pub score: usize,
+    /// Template (mm) to undistorted image (px) homography of the refined holes.
+    pub homography: Matrix3<f64>,
+}
+
+/// Milliseconds per stage.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTimes {
+    pub candidates: f64,
+    pub classify: f64,
+    pub hash: f64,
+    pub refine: f64,
+}
+
+impl StageTimes {
+    pub fn total(&self) -> f64 {
+        self.candidates + self.classify + self.hash + self.refine
+    }
+}
+
+/// What one image gave: the outlet or none, and what led there.
+#[derive(Debug, Clone)]
+pub struct DetectReport {
+    pub detection: Option<Detection>,
+    /// Every candidate with its class.
+    pub candidates: Vec<(Candidate, Class)>,
+    pub times: StageTimes,
+}
+
+/// A template ready to detect with.
+#[derive(Debug, Clone)]
+pub struct Detector {
+    template: Template,
+    table: HashTable,
+    outlines: Vec<HoleShape>,
+    params: DetectorParams,
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+impl Detector {
+    pub fn new(template: Template, params: DetectorParams) -> Self {
+        let points: Vec<Point2<f64>> = template.geometry.holes.iter().map(|h| h.position()).collect();
+        let classes: Vec<Class> = template.geometry.holes.iter().map(|h| Class::from(h.kind)).collect();
+        let table = HashTable::new(&points, &classes, &params.hash);
+        let outlines = HoleShape::us_outlines(&template.geometry);
+        Self { template, table, outlines, params }
+    }
+
+    pub fn template(&self) -> &Template {
+        &self.template
+    }
+
+    pub fn params(&self) -> &DetectorParams {
+        &self.params
+    }
+
+    /// Finds the template's outlet in an image, or reports none. With a camera,
+    /// geometry works on undistorted coordinates; pixels are reported as captured.
+    pub fn detect(&self, image: &RgbImage, camera: Option<&CameraModel>) -> DetectReport {
+        let grey = grey_of(image);
+        self.detect_grey(&grey, camera)
+    }
+
+    pub fn detect_grey(&self, grey: &GrayImage, camera: Option<&CameraModel>) -> DetectReport {
+        let mut times = StageTimes::default();
+        let t = Instant::now();
+        let _span = tracing::debug_span!("detect", width = grey.width(), height = grey.height()).entered();
+        let mut candidates = find_candidates(grey, &self.params.candidates);
+        candidates.sort_by(|a, b| b.contrast.total_cmp(&a.contrast));
+        candidates.truncate(self.params.max_candidates);
+        times.candidates = ms_since(t);
+
+        let t = Instant::now();
+        let classified: Vec<(Candidate, Class)> =
+            candidates.iter().map(|c| (*c, self.template.descriptor.classify_candidate(grey, c).class)).collect();
+        times.classify = ms_since(t);
+
+        let t = Instant::now();
+        let lens = Lens { camera };
+        let holes: Vec<&(Candidate, Class)> =
+            classified.iter().filter(|(_, class)| *class != Class::Background).collect();
+        let points: Vec<Point2<f64>> = holes.iter().map(|(c, _)| lens.undistort(c.centre)).collect();
+        let classes: Vec<Class> = holes.iter().map(|(_, class)| *class).collect();
+        let sizes: Vec<f64> = holes.iter().map(|(c, _)| c.size[0].max(c.size[1]) as f64).collect();
+        let found = find_outlet(&self.table, &points, &classes, &sizes, &self.params.hash);
+        times.hash = ms_since(t);
+
+        let t = Instant::now();
+        let detection = found.and_then(|m| {
+            let guesses: Vec<Option<Point2<f64>>> =
+                m.assignment.iter().map(|a| a.and_then(|k| holes.get(k).map(|(c, _)| c.centre))).collect();
+            self.refine(grey, &lens, &m.transform, &guesses, m.score)
+        });
+        times.refine = ms_since(t);
+        DetectReport { detection, candidates: classified, times }
+    }
+
+    /// Refines every hole from the hashing's homography, then checks that the
+    /// refined holes lie on one plane's homography.
+    fn refine(
+        &self,
+        grey: &GrayImage,
+        lens: &Lens,
+        homography: &Matrix3<f64>,
+        guesses: &[Option<Point2<f64>>],
+        score: usize,
+    ) -> Option<Detection> {
+        let model: Vec<Point2<f64>> = self.template.geometry.holes.iter().map(|h| h.position()).collect();
+        let mut refined: Vec<Option<Point2<f64>>> = Vec::with_capacity(model.len());
+        for (i, t) in model.iter().enumerate() {
+            let predicted = lens.distort(apply(homography, t)?);
+            // The candidate's own centre where it is close to the prediction.
+            let guess = match guesses.get(i).copied().flatten() {
+                Some(g) if (g - predicted).norm() < 3.0 => g,
+                _ => predicted,
+            };
+            let jacobian = local_jacobian(homography, lens, t)?;
+            let fit = refine_hole(grey, guess, &jacobian, self.outlines[i], &self.params.refine);
+            refined.push(fit.map(|r| r.centre));
+        }
+        let pairs: Vec<(Point2<f64>, Point2<f64>)> =
+            model.iter().zip(&refined).filter_map(|(t, r)| r.map(|r| (*t, lens.undistort(r)))).collect();
+        if pairs.len() < 4 || pairs.len() < self.params.hash.min_score(model.len()) {
+            return None;
+        }
+        let h = fit_homography(&pairs)?;
+        let residuals: Vec<f64> = pairs.iter().filter_map(|(t, p)| apply(&h, t).map(|q| (q - p).norm())).collect();
+        let rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len().max(1) as f64).sqrt();
+        if residuals.len() != pairs.len() || rms > self.params.max_plane_rms_px {
+            tracing::debug!(rms, "refined holes do not lie on one plane: no outlet");
+            return None;
+        }
+        let holes = model
+            .iter()
+            .zip(&refined)
+            .zip(&self.template.geometry.holes)
+            .map(|((t, r), hole)| {
+                let pixel = match r {
+                    Some(p) => Some(*p),
+                    None => apply(&h, t).map(|q| lens.distort(q)),
+                };
+                pixel.map(|pixel| DetectedHole { kind: hole.kind, pixel, refined: r.is_some() })
+            })
+            .collect::<Option<Vec<_>>>()?;
+        Some(Detection { holes, score, homography: h })
+    }
+}
+
+/// Distortion on the way in and out of the geometric stages.
+struct Lens<'a> {
+    camera: Option<&'a CameraModel>,
+}
+
+impl Lens<'_> {
+    /// Undistorted pixel (same intrinsics, no distortion) of a captured pixel.
+    fn undistort(&self, p: Point2<f64>) -> Point2<f64> {
+        match self.camera {
+            Some(c) if !c.is_rectified() => {
+                let n = c.undistort_pixel(p);
+                Point2::new(c.fx * n.x + c.cx, c.fy * n.y + c.cy)
+            }
+            _ => p,
+        }
+    }
+
+    fn distort(&self, p: Point2<f64>) -> Point2<f64> {
+        match self.camera {
+            Some(c) if !c.is_rectified() => {
+                let d = c.distort_normalized(Vector2::new((p.x - c.cx) / c.fx, (p.y - c.cy) / c.fy));
+                Point2::new(c.fx * d.x + c.cx, c.fy * d.y + c.cy)
+            }
+            _ => p,
+        }
+    }
+}
+
+/// Applies a homography; `None` at or behind the horizon.
+pub fn apply(h: &Matrix3<f64>, p: &Point2<f64>) -> Option<Point2<f64>> {
+    let q = h * Vector3::new(p.x, p.y, 1.0);
+    (q.z.abs() > 1e-12 && q.x.is_finite() && q.y.is_finite()).then(|| Point2::new(q.x / q.z, q.y / q.z))
+}
+
+/// d(captured pixel)/d(template mm) at a template point.
+fn local_jacobian(h: &Matrix3<f64>, lens: &Lens, t: &Point2<f64>) -> Option<Matrix2<f64>> {
+    let at = |dx: f64, dy: f64| apply(h, &Point2::new(t.x + dx, t.y + dy)).map(|q| lens.distort(q));
+    let (xp, xm, yp, ym) = (at(0.5, 0.0)?, at(-0.5, 0.0)?, at(0.0, 0.5)?, at(0.0, -0.5)?);
+    Some(Matrix2::new(xp.x - xm.x, yp.x - ym.x, xp.y - xm.y, yp.y - ym.y))
+}
+
+/// Least-squares homography from point pairs (normalised DLT), `None` if degenerate.
+pub fn fit_homography(pairs: &[(Point2<f64>, Point2<f64>)]) -> Option<Matrix3<f64>> {
+    if pairs.len() < 4 {
+        return None;
+    }
+    let normaliser = |pts: &mut dyn Iterator<Item = Point2<f64>>| {
+        let v: Vec<Point2<f64>> = pts.collect();
+        let n = v.len() as f64;
+        let c = v.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / n;
+        let d = v.iter().map(|p| (p.coords - c).norm()).sum::<f64>() / n;
+        if d <= 1e-12 {
+            return None;
+        }
+        let s = std::f64::consts::SQRT_2 / d;
+        Some(Matrix3::new(s, 0.0, -s * c.x, 0.0, s, -s * c.y, 0.0, 0.0, 1.0))
+    };
+    let ta = normaliser(&mut pairs.iter().map(|p| p.0))?;
+    let tb = normaliser(&mut pairs.iter().map(|p| p.1))?;
+    let mut a = nalgebra::DMatrix::<f64>::zeros(2 * pairs.len(), 9);
+    for (k, (p, q)) in pairs.iter().enumerate() {
+        let p = ta * Vector3::new(p.x, p.y, 1.0);
+        let q = tb * Vector3::new(q.x, q.y, 1.0);
+        let (x, y, u, v) = (p.x, p.y, q.x, q.y);
+        a.row_mut(2 * k).copy_from_slice(&[-x, -y, -1.0, 0.0, 0.0, 0.0, u * x, u * y, u]);
+        a.row_mut(2 * k + 1).copy_from_slice(&[0.0, 0.0, 0.0, -x, -y, -1.0, v * x, v * y, v]);
+    }
+    // The null vector of A: the eigenvector of A^T A with the smallest eigenvalue.
+    let ata = a.transpose() * &a;
+    let eig = ata.symmetric_eigen();
+    let h = eig.eigenvectors.column(eig.eigenvalues.imin());
+    let hn = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
+    let h = tb.try_inverse()? * hn * ta;
+    (h[(2, 2)].abs() > 1e-15).then(|| h / h[(2, 2)])
+}

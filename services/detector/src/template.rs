@@ -1,0 +1,185 @@
+//! Templates: what the detector knows of one kind of outlet, learnt from ONE
+//! labelled image (paper section IV): the holes' geometry and the trained one-way
+//! descriptor. Files are postcard behind a header with a format version and a
+//! CRC-32, so that a truncated, corrupted or too-new file is named and refused.
+
+use crate::descriptor::{DescriptorError, DescriptorParams, OneWayDescriptor, TrainingFeature, background_features};
+use crate::{Candidate, Class};
+use image::GrayImage;
+use nalgebra::Point2;
+use outlet_protocol::OutletGeometry;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The file format this build writes and the newest it reads.
+pub const TEMPLATE_FORMAT_VERSION: u32 = 1;
+const MAGIC: &[u8; 8] = b"OUTLETTP";
+const HEADER_LEN: usize = 8 + 4 + 8 + 4;
+
+/// A trained outlet template.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Template {
+    /// `2x1`, `2x2`, or the name given at training.
+    pub name: String,
+    /// Holes in the outlet frame (mm), template order.
+    pub geometry: OutletGeometry,
+    pub descriptor: OneWayDescriptor,
+}
+
+/// Why a template could not be made or read.
+#[derive(Debug, thiserror::Error)]
+pub enum TemplateError {
+    #[error("cannot read template {path}: {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error("{path} is not an outlet template file")]
+    NotATemplate { path: String },
+    #[error("template {path} has format version {found}; this build reads up to {supported}")]
+    TooNew { path: String, found: u32, supported: u32 },
+    #[error("template {path} is truncated: {got} of {expected} bytes")]
+    Truncated { path: String, expected: u64, got: u64 },
+    #[error("template {path} is corrupted: checksum {found:08x}, expected {expected:08x}")]
+    Checksum { path: String, found: u32, expected: u32 },
+    #[error("template {path} cannot be decoded: {reason}")]
+    Decode { path: String, reason: String },
+    #[error("template {name}: {reason}")]
+    Invalid { name: String, reason: String },
+    #[error("training template {name}: {source}")]
+    Training { name: String, source: DescriptorError },
+}
+
+impl Template {
+    /// The file's bytes: header (magic, version, payload length, CRC-32), then postcard.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let payload = postcard::to_stdvec(self).unwrap_or_default();
+        let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
+        out.extend_from_slice(MAGIC);
+        out.extend_from_slice(&TEMPLATE_FORMAT_VERSION.to_le_bytes());
+        out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        out.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
+        out.extend_from_slice(&payload);
+        out
+    }
+
+    /// Parses a template file's bytes; `path` names it in errors.
+    pub fn from_bytes(bytes: &[u8], path: &str) -> Result<Self, TemplateError> {
+        let path = path.to_string();
+        if bytes.len() < MAGIC.len() || &bytes[..MAGIC.len()] != MAGIC {
+            return Err(TemplateError::NotATemplate { path });
+        }
+        if bytes.len() < HEADER_LEN {
+            return Err(TemplateError::Truncated { path, expected: HEADER_LEN as u64, got: bytes.len() as u64 });
+        }
+        let word = |at: usize| u32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]);
+        let version = word(8);
+        if version > TEMPLATE_FORMAT_VERSION || version == 0 {
+            return Err(TemplateError::TooNew { path, found: version, supported: TEMPLATE_FORMAT_VERSION });
+        }
+        let mut len_bytes = [0u8; 8];
+        len_bytes.copy_from_slice(&bytes[12..20]);
+        let len = u64::from_le_bytes(len_bytes);
+        let expected_crc = word(20);
+        let payload = &bytes[HEADER_LEN..];
+        if (payload.len() as u64) < len {
+            return Err(TemplateError::Truncated { path, expected: HEADER_LEN as u64 + len, got: bytes.len() as u64 });
+        }
+        let payload = &payload[..len as usize];
+        let found = crc32fast::hash(payload);
+        if found != expected_crc {
+            return Err(TemplateError::Checksum { path, found, expected: expected_crc });
+        }
+        let template: Template = postcard::from_bytes(payload)
+            .map_err(|e| TemplateError::Decode { path: path.clone(), reason: e.to_string() })?;
+        template
+            .geometry
+            .validate(&path)
+            .map_err(|e| TemplateError::Invalid { name: path.clone(), reason: e.to_string() })?;
+        Ok(template)
+    }
+
+    pub fn read(path: &Path) -> Result<Self, TemplateError> {
+        let name = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|source| TemplateError::Io { path: name.clone(), source })?;
+        Self::from_bytes(&bytes, &name)
+    }
+
+    pub fn write(&self, path: &Path) -> Result<(), TemplateError> {
+        std::fs::write(path, self.to_bytes())
+            .map_err(|source| TemplateError::Io { path: path.display().to_string(), source })
+    }
+}
+
+/// One labelled training image: the holes' pixels in the geometry's order.
+#[derive(Debug, Clone)]
+pub struct TrainingImage<'a> {
+    pub grey: &'a GrayImage,
+    pub holes: Vec<Point2<f64>>,
+}
+
+/// Trains a template from one labelled image and background images (or, without
+/// them, only the training image's candidates away from the holes). Candidates
+/// are the hole candidates of each image, already found.
+pub fn train_template(
+    name: &str,
+    geometry: OutletGeometry,
+    training: &TrainingImage,
+    training_candidates: &[Candidate],
+    backgrounds: &[(&GrayImage, Vec<Candidate>)],
+    params: &DescriptorParams,
+) -> Result<Template, TemplateError> {
+    let invalid = |reason: String| TemplateError::Invalid { name: name.to_string(), reason };
+    if training.holes.len() != geometry.holes.len() {
+        return Err(invalid(format!(
+            "{} labelled holes for a geometry of {}",
+            training.holes.len(),
+            geometry.holes.len()
+        )));
+    }
+    geometry.validate(name).map_err(|e| invalid(e.to_string()))?;
+    let pitch_px =
+        slot_pitch_px(&geometry, &training.holes).ok_or_else(|| invalid("the labels are degenerate".into()))?;
+    let scale = params.scale_for_slot_pitch(pitch_px);
+    let mut features: Vec<TrainingFeature> = geometry
+        .holes
+        .iter()
+        .zip(&training.holes)
+        .map(|(h, p)| TrainingFeature { centre: *p, class: Class::from(h.kind), scale })
+        .collect();
+    // Background: what else looks like a hole, away from the outlet.
+    const MAX_BACKGROUND: usize = 60;
+    // The training image's own non-hole candidates (screw slots, face edges) are
+    // the most telling background of all.
+    features.extend(background_features(
+        training.grey,
+        training_candidates,
+        &training.holes,
+        0.35 * pitch_px,
+        MAX_BACKGROUND / 2,
+    ));
+    if !backgrounds.is_empty() {
+        let per_image = MAX_BACKGROUND.div_ceil(backgrounds.len());
+        for (grey, candidates) in backgrounds {
+            features.extend(background_features(grey, candidates, &[], 0.0, per_image));
+        }
+    }
+    let descriptor = crate::descriptor::train(training.grey, &features, params)
+        .map_err(|source| TemplateError::Training { name: name.to_string(), source })?;
+    Ok(Template { name: name.to_string(), geometry, descriptor })
+}
+
+/// The image length of 12.7 mm near the holes: the mean ratio of pixel to mm
+/// distances over all hole pairs, times the slot pitch.
+fn slot_pitch_px(geometry: &OutletGeometry, pixels: &[Point2<f64>]) -> Option<f64> {
+    let (mut sum, mut n) = (0.0, 0);
+    for i in 0..pixels.len() {
+        for j in i + 1..pixels.len() {
+            let mm = (geometry.holes[i].position() - geometry.holes[j].position()).norm();
+            let px = (pixels[i] - pixels[j]).norm();
+            if mm > 1.0 && px.is_finite() {
+                sum += px / mm;
+                n += 1;
+            }
+        }
+    }
+    let ratio = sum / n.max(1) as f64;
+    (n > 0 && ratio > 0.0).then_some(ratio * outlet_protocol::geometry::SLOT_PITCH_MM)
+}

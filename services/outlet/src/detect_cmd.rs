@@ -1,0 +1,345 @@
+//! `outlet detect` (CONTRACT.md) and `outlet train`.
+
+use crate::templates;
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use image::{Rgb, RgbImage};
+use nalgebra::Point2;
+use outlet_detector::candidates::find_candidates;
+use outlet_detector::descriptor::DescriptorParams;
+use outlet_detector::detect::{DetectReport, Detector, DetectorParams};
+use outlet_detector::template::{TrainingImage, train_template};
+use outlet_detector::{Class, grey_of};
+use outlet_protocol::camera_info::read_camera_info;
+use outlet_protocol::{CameraModel, HoleKind, OutletGeometry};
+use serde_json::{Value, json};
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Args, Debug)]
+pub struct DetectArgs {
+    /// Template: `2x1`, `2x2` or a template file written by `outlet train`.
+    #[arg(long, default_value = "2x1")]
+    pub template: String,
+    /// ROS camera_info YAML of the camera (plumb_bob distortion honoured).
+    #[arg(long)]
+    pub camera: Option<PathBuf>,
+    /// Wall normal in the camera frame "NX,NY,NZ" (either sign).
+    #[arg(long, allow_hyphen_values = true, conflicts_with = "points")]
+    pub normal: Option<String>,
+    /// Stereo cloud of the wall (PLY, camera frame, metres).
+    #[arg(long)]
+    pub points: Option<PathBuf>,
+    /// One JSON object per image on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// JSON lines manifest: {"image": P, "camera": P, "template": T, "normal": [x,y,z] | "points": P}.
+    #[arg(long, conflicts_with = "images")]
+    pub batch: Option<PathBuf>,
+    /// Draw the found holes and the classified candidates: a PNG file for one
+    /// image, a folder for several.
+    #[arg(long)]
+    pub annotate: Option<PathBuf>,
+    /// Images to search.
+    pub images: Vec<PathBuf>,
+}
+
+/// One image to process, with what goes with it.
+struct Job {
+    image: PathBuf,
+    camera: Option<PathBuf>,
+    template: String,
+}
+
+/// Templates are trained or read once per run, whatever the number of images.
+#[derive(Default)]
+struct Detectors {
+    cache: HashMap<String, Detector>,
+}
+
+impl Detectors {
+    fn get(&mut self, name: &str) -> Result<&Detector> {
+        if !self.cache.contains_key(name) {
+            let template = templates::load(name).with_context(|| format!("loading template {name}"))?;
+            self.cache.insert(name.to_string(), Detector::new(template, DetectorParams::default()));
+        }
+        self.cache.get(name).context("template cache")
+    }
+}
+
+fn read_manifest(path: &Path, default_template: &str) -> Result<Vec<Result<Job, String>>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading manifest {}", path.display()))?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    let resolve = |p: &str| {
+        let p = Path::new(p);
+        if p.is_absolute() { p.to_path_buf() } else { base.join(p) }
+    };
+    Ok(text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(n, line)| {
+            let v: Value = serde_json::from_str(line).map_err(|e| format!("manifest line {}: {e}", n + 1))?;
+            let image = v["image"].as_str().ok_or_else(|| format!("manifest line {}: no \"image\"", n + 1))?;
+            Ok(Job {
+                image: resolve(image),
+                camera: v["camera"].as_str().map(resolve),
+                template: v["template"].as_str().unwrap_or(default_template).to_string(),
+            })
+        })
+        .collect())
+}
+
+pub fn detect(args: DetectArgs) -> Result<()> {
+    if args.normal.is_some() || args.points.is_some() {
+        tracing::warn!("--normal and --points need the pose solvers, which are not built yet: positions are null");
+    }
+    let jobs: Vec<Result<Job, String>> = match &args.batch {
+        Some(manifest) => read_manifest(manifest, &args.template)?,
+        None if args.images.is_empty() => bail!("no image given: name images or --batch MANIFEST.jsonl"),
+        None => args
+            .images
+            .iter()
+            .map(|p| Ok(Job { image: p.clone(), camera: args.camera.clone(), template: args.template.clone() }))
+            .collect(),
+    };
+    let mut detectors = Detectors::default();
+    let mut processed = 0;
+    let stdout = std::io::stdout();
+    let several = jobs.len() > 1;
+    for job in &jobs {
+        let record = match job {
+            Ok(job) => match run_one(job, &mut detectors, args.annotate.as_deref(), several) {
+                Ok(record) => {
+                    processed += 1;
+                    record
+                }
+                Err(e) => json!({"image": job.image.display().to_string(), "found": false, "error": format!("{e:#}")}),
+            },
+            Err(e) => json!({"image": null, "found": false, "error": e}),
+        };
+        let mut out = stdout.lock();
+        if args.json {
+            writeln!(out, "{record}")?;
+        } else {
+            writeln!(out, "{}", human(&record))?;
+        }
+    }
+    if processed == 0 {
+        bail!("no input could be processed");
+    }
+    Ok(())
+}
+
+fn run_one(job: &Job, detectors: &mut Detectors, annotate: Option<&Path>, several: bool) -> Result<Value> {
+    let camera: Option<CameraModel> = job.camera.as_deref().map(read_camera_info).transpose()?;
+    let image = image::open(&job.image).with_context(|| format!("reading image {}", job.image.display()))?.to_rgb8();
+    if image.width() == 0 || image.height() == 0 {
+        bail!("image {} is empty", job.image.display());
+    }
+    if let Some(c) = &camera
+        && (c.width, c.height) != image.dimensions()
+    {
+        bail!(
+            "image {} is {}x{} but camera_info says {}x{}",
+            job.image.display(),
+            image.width(),
+            image.height(),
+            c.width,
+            c.height
+        );
+    }
+    let detector = detectors.get(&job.template)?;
+    let t = Instant::now();
+    let report = detector.detect(&image, camera.as_ref());
+    let detect_ms = t.elapsed().as_secs_f64() * 1e3;
+    if let Some(path) = annotate {
+        let out = if several {
+            std::fs::create_dir_all(path)?;
+            let stem = job.image.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            path.join(format!("{stem}.annotated.png"))
+        } else {
+            path.to_path_buf()
+        };
+        draw_annotation(&image, &report)
+            .save_with_format(&out, image::ImageFormat::Png)
+            .with_context(|| format!("writing {}", out.display()))?;
+    }
+    let holes: Vec<Value> = report
+        .detection
+        .iter()
+        .flat_map(|d| &d.holes)
+        .map(|h| json!({"kind": h.kind.as_str(), "pixel": [h.pixel.x, h.pixel.y], "position_m": null}))
+        .collect();
+    Ok(json!({
+        "image": job.image.display().to_string(),
+        "found": report.detection.is_some(),
+        "template": job.template,
+        "holes": holes,
+        "pose": null,
+        "timing_ms": {"detect": detect_ms, "pose": null},
+    }))
+}
+
+fn human(record: &Value) -> String {
+    let image = record["image"].as_str().unwrap_or("?");
+    if let Some(e) = record["error"].as_str() {
+        return format!("{image}: error: {e}");
+    }
+    let ms = record["timing_ms"]["detect"].as_f64().unwrap_or(f64::NAN);
+    match record["holes"].as_array() {
+        Some(holes) if !holes.is_empty() => {
+            let list: Vec<String> = holes
+                .iter()
+                .map(|h| {
+                    format!(
+                        "{} ({:.2}, {:.2})",
+                        h["kind"].as_str().unwrap_or("?"),
+                        h["pixel"][0].as_f64().unwrap_or(f64::NAN),
+                        h["pixel"][1].as_f64().unwrap_or(f64::NAN)
+                    )
+                })
+                .collect();
+            format!(
+                "{image}: outlet {} found in {ms:.1} ms: {}",
+                record["template"].as_str().unwrap_or("?"),
+                list.join(", ")
+            )
+        }
+        _ => format!("{image}: no outlet ({ms:.1} ms)"),
+    }
+}
+
+/// Colours of the paper's Fig. 2: yellow power, blue ground, red background.
+fn class_colour(class: Class) -> Rgb<u8> {
+    match class {
+        Class::Power => Rgb([255, 220, 0]),
+        Class::Ground => Rgb([40, 120, 255]),
+        Class::Background => Rgb([230, 40, 40]),
+    }
+}
+
+fn draw_circle(image: &mut RgbImage, c: Point2<f64>, r: f64, colour: Rgb<u8>) {
+    let steps = (r * 8.0).max(16.0) as usize;
+    for k in 0..steps {
+        let a = k as f64 * std::f64::consts::TAU / steps as f64;
+        let (x, y) = ((c.x + r * a.cos()).round(), (c.y + r * a.sin()).round());
+        if x >= 0.0 && y >= 0.0 && (x as u32) < image.width() && (y as u32) < image.height() {
+            image.put_pixel(x as u32, y as u32, colour);
+        }
+    }
+}
+
+/// The image with classified candidates (small circles) and the found holes
+/// (large circles with a cross), for a person to check.
+pub fn draw_annotation(image: &RgbImage, report: &DetectReport) -> RgbImage {
+    let mut out = image.clone();
+    for (c, class) in &report.candidates {
+        draw_circle(&mut out, c.centre, 2.5, class_colour(*class));
+    }
+    if let Some(d) = &report.detection {
+        for h in &d.holes {
+            let colour = match h.kind {
+                HoleKind::Power => class_colour(Class::Power),
+                HoleKind::Ground => class_colour(Class::Ground),
+            };
+            draw_circle(&mut out, h.pixel, 7.0, colour);
+            draw_circle(&mut out, h.pixel, 8.0, Rgb([0, 0, 0]));
+            for d in -3i32..=3 {
+                for (x, y) in [(h.pixel.x + d as f64, h.pixel.y), (h.pixel.x, h.pixel.y + d as f64)] {
+                    if x >= 0.0 && y >= 0.0 && (x as u32) < out.width() && (y as u32) < out.height() {
+                        out.put_pixel(x as u32, y as u32, Rgb([0, 255, 0]));
+                    }
+                }
+            }
+        }
+        crate::font::draw_text(&mut out, &format!("outlet: score {}", d.score), 6, 6, 2, Rgb([0, 255, 0]));
+    } else {
+        crate::font::draw_text(&mut out, "no outlet", 6, 6, 2, Rgb([255, 60, 60]));
+    }
+    out
+}
+
+#[derive(Args, Debug)]
+pub struct TrainArgs {
+    /// The one labelled image of the outlet.
+    #[arg(long)]
+    pub image: PathBuf,
+    /// LABELS.json: {"holes": [{"kind": "power"|"ground", "pixel": [u, v]}, ...]} in the geometry's order.
+    #[arg(long)]
+    pub labels: PathBuf,
+    /// `2x1`, `2x2` or a GEOMETRY.json.
+    #[arg(long)]
+    pub geometry: String,
+    /// Images (or regions of them) without an outlet; without any, the training
+    /// image's candidates away from the holes serve.
+    #[arg(long)]
+    pub background: Vec<PathBuf>,
+    /// Template file to write.
+    #[arg(long)]
+    pub output: PathBuf,
+}
+
+pub fn train(args: TrainArgs) -> Result<()> {
+    let t = Instant::now();
+    let geometry = OutletGeometry::builtin_or_file(&args.geometry)?;
+    let image = image::open(&args.image).with_context(|| format!("reading image {}", args.image.display()))?.to_rgb8();
+    let labels: Value = serde_json::from_str(
+        &std::fs::read_to_string(&args.labels).with_context(|| format!("reading labels {}", args.labels.display()))?,
+    )
+    .with_context(|| format!("labels {} are not JSON", args.labels.display()))?;
+    let holes =
+        labels["holes"].as_array().with_context(|| format!("labels {}: no \"holes\" list", args.labels.display()))?;
+    let mut pixels = Vec::with_capacity(holes.len());
+    for (i, h) in holes.iter().enumerate() {
+        let (Some(u), Some(v)) = (h["pixel"][0].as_f64(), h["pixel"][1].as_f64()) else {
+            bail!("labels {}: hole {i} has no numeric \"pixel\": [u, v]", args.labels.display());
+        };
+        let kind = h["kind"].as_str().unwrap_or("");
+        if let Some(model) = geometry.holes.get(i)
+            && kind != model.kind.as_str()
+        {
+            bail!(
+                "labels {}: hole {i} is {kind:?} but the geometry's hole {i} is {}",
+                args.labels.display(),
+                model.kind.as_str()
+            );
+        }
+        pixels.push(Point2::new(u, v));
+    }
+    let grey = grey_of(&image);
+    let params = outlet_detector::candidates::CandidateParams::default();
+    let candidates = find_candidates(&grey, &params);
+    let backgrounds: Vec<_> = args
+        .background
+        .iter()
+        .map(|p| {
+            let g = grey_of(&image::open(p).with_context(|| format!("reading background {}", p.display()))?.to_rgb8());
+            let c = find_candidates(&g, &params);
+            Ok((g, c))
+        })
+        .collect::<Result<_>>()?;
+    let refs: Vec<_> = backgrounds.iter().map(|(g, c)| (g, c.clone())).collect();
+    let name = args.output.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "template".into());
+    let template = train_template(
+        &name,
+        geometry,
+        &TrainingImage { grey: &grey, holes: pixels },
+        &candidates,
+        &refs,
+        &DescriptorParams::default(),
+    )?;
+    template.write(&args.output)?;
+    let counts = template.descriptor.sample_counts();
+    tracing::info!(
+        "wrote {} ({} power, {} ground, {} background samples) in {:.0} ms",
+        args.output.display(),
+        counts[0],
+        counts[1],
+        counts[2],
+        t.elapsed().as_secs_f64() * 1e3
+    );
+    Ok(())
+}
