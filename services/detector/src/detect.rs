@@ -20,9 +20,11 @@ pub struct DetectorParams {
     pub refine: RefineParams,
     /// Candidates classified at most (the most contrasted first).
     pub max_candidates: usize,
-    /// After refinement the holes must fit one plane's homography to this RMS
-    /// (pixels) or the outlet is refused: the last guard against false alarms.
-    pub max_plane_rms_px: f64,
+    /// After refinement every kept hole must lie within this distance of one
+    /// plane's homography through them, in pixels or in mm on the outlet (the
+    /// larger): real outlets differ from nominal by a few tenths of a mm.
+    pub max_plane_px: f64,
+    pub max_plane_mm: f64,
 }
 
 impl Default for DetectorParams {
@@ -32,7 +34,8 @@ impl Default for DetectorParams {
             hash: HashParams::default(),
             refine: RefineParams::default(),
             max_candidates: 400,
-            max_plane_rms_px: 1.5,
+            max_plane_px: 1.2,
+            max_plane_mm: 0.8,
         }
     }
 }
@@ -177,18 +180,38 @@ impl Detector {
             let fit = refine_hole(grey, guess, &jacobian, self.outlines[i], &self.params.refine);
             refined.push(fit.map(|r| r.centre));
         }
-        let pairs: Vec<(Point2<f64>, Point2<f64>)> =
-            model.iter().zip(&refined).filter_map(|(t, r)| r.map(|r| (*t, lens.undistort(r)))).collect();
-        if pairs.len() < 4 || pairs.len() < self.params.hash.min_score(model.len()) {
-            return None;
-        }
-        let h = fit_homography(&pairs)?;
-        let residuals: Vec<f64> = pairs.iter().filter_map(|(t, p)| apply(&h, t).map(|q| (q - p).norm())).collect();
-        let rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len().max(1) as f64).sqrt();
-        if residuals.len() != pairs.len() || rms > self.params.max_plane_rms_px {
-            tracing::debug!(rms, "refined holes do not lie on one plane: no outlet");
-            return None;
-        }
+        // The refined holes must lie where one plane puts them. Holes that do not
+        // (a fit caught by a glint or a dark spot) are dropped one by one, worst
+        // first; the outlet stands only if enough holes remain.
+        let min_holes = self.params.hash.min_score(model.len()).max(4);
+        // Pixels per mm along the outlet's least foreshortened direction.
+        let scale = local_jacobian(homography, lens, &centroid(&model))?.singular_values().max();
+        let tolerance = self.params.max_plane_px.max(self.params.max_plane_mm * scale);
+        let h = loop {
+            let pairs: Vec<(Point2<f64>, Point2<f64>)> =
+                model.iter().zip(&refined).filter_map(|(t, r)| r.map(|r| (*t, lens.undistort(r)))).collect();
+            if pairs.len() < min_holes {
+                tracing::debug!(holes = pairs.len(), "too few holes lie on one plane: no outlet");
+                return None;
+            }
+            let h = fit_homography(&pairs)?;
+            let worst = model
+                .iter()
+                .zip(&refined)
+                .enumerate()
+                .filter_map(|(i, (t, r))| {
+                    let r = lens.undistort((*r)?);
+                    apply(&h, t).map(|q| (i, (q - r).norm()))
+                })
+                .max_by(|a, b| a.1.total_cmp(&b.1));
+            match worst {
+                Some((i, e)) if e > tolerance => {
+                    tracing::debug!(hole = i, error_px = e, tolerance, "hole off the plane: dropped");
+                    refined[i] = None;
+                }
+                _ => break h,
+            }
+        };
         let holes = model
             .iter()
             .zip(&refined)
@@ -231,6 +254,10 @@ impl Lens<'_> {
             _ => p,
         }
     }
+}
+
+fn centroid(points: &[Point2<f64>]) -> Point2<f64> {
+    Point2::from(points.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / points.len().max(1) as f64)
 }
 
 /// Applies a homography; `None` at or behind the horizon.
