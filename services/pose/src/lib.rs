@@ -1,0 +1,327 @@
+//! Hole positions in the camera frame from detected hole pixels (paper section V
+//! and beyond).
+//!
+//! - [`solve_normal`]: the paper's closed form with the wall normal as a hard
+//!   constraint, minimising the residual in the object plane (equations 11-17).
+//! - [`solve_plane`]: normal and distance of the wall from stereo, then a maximum
+//!   likelihood refinement of the reprojection error with the plane as a prior
+//!   weighted by its covariance.
+//! - [`solve_mono`]: planar PnP from pixels alone (homography decomposition, both
+//!   mirror solutions refined by Levenberg-Marquardt, the better kept).
+//!
+//! Every solution carries a 3x3 covariance per hole (camera frame, m²), from the
+//! pixel noise of the detector and the covariance of the plane.
+//!
+//! Frames: the camera frame of REP 103 (x right, y down, z forward, metres); the
+//! outlet frame of `CONTRACT.md` (holes on the face plane z = 0, z into the wall).
+
+mod closed_form;
+mod lm;
+mod mono;
+
+pub use closed_form::closed_form_normal;
+
+use nalgebra::{Isometry3, Matrix2, Matrix3, Point2, Point3, Unit, Vector2, Vector3};
+use outlet_protocol::CameraModel;
+use serde::{Deserialize, Serialize};
+
+/// What a pose was computed from (the `mode` of `CONTRACT.md`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    Mono,
+    Normal,
+    Plane,
+}
+
+impl Mode {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Mode::Mono => "mono",
+            Mode::Normal => "normal",
+            Mode::Plane => "plane",
+        }
+    }
+}
+
+/// Why no pose could be computed.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum PoseError {
+    #[error("{got} holes given, {needed} needed for the {mode} pose")]
+    TooFewHoles { got: usize, needed: usize, mode: &'static str },
+    #[error("{model} model holes but {pixels} pixels")]
+    CountMismatch { model: usize, pixels: usize },
+    #[error("hole {index} has a non-finite pixel or model position")]
+    NonFinite { index: usize },
+    #[error("the wall normal is not finite or is zero")]
+    BadNormal,
+    #[error("the wall normal is {angle_deg:.1} degrees from the line of sight: nearly parallel to the image plane")]
+    GrazingNormal { angle_deg: f64 },
+    #[error("the holes are collinear (or coincide): the pose is not determined")]
+    Collinear,
+    #[error("the plane is not finite, or its covariance is not positive definite")]
+    BadPlane,
+    #[error("the pixel noise must be finite and positive, got {0}")]
+    BadSigma(f64),
+    #[error("no pose puts the outlet in front of the camera")]
+    BehindCamera,
+}
+
+/// The holes as detected: model positions and image pixels.
+#[derive(Debug, Clone, Copy)]
+pub struct Observations<'a> {
+    /// Hole centres in the outlet frame on the face plane (mm).
+    pub model_mm: &'a [Point2<f64>],
+    /// The same holes in the image as captured (distorted pixels).
+    pub pixels: &'a [Point2<f64>],
+    pub camera: &'a CameraModel,
+    /// Standard deviation of a hole's pixel, each axis (pixels).
+    pub pixel_sigma: f64,
+}
+
+/// The wall as stereo measured it: `normal · X = distance_m` in the camera frame,
+/// with the covariance of `(δa, δb, δd)` where the normal is perturbed as
+/// `normalize(normal + δa·tangent[0] + δb·tangent[1])`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlaneMeasurement {
+    pub normal: Unit<Vector3<f64>>,
+    pub distance_m: f64,
+    pub covariance: Matrix3<f64>,
+    pub tangent: [Vector3<f64>; 2],
+    /// How far the receptacle face stands ahead of the wall (m): the holes' plane
+    /// is the wall moved this far towards the camera.
+    pub face_offset_m: f64,
+}
+
+impl PlaneMeasurement {
+    /// A plane with an isotropic uncertainty: `sigma_rad` on the normal's
+    /// direction, `sigma_m` on the distance.
+    pub fn new(normal: Vector3<f64>, distance_m: f64, sigma_rad: f64, sigma_m: f64, face_offset_m: f64) -> Self {
+        let normal = Unit::new_normalize(normal);
+        let tangent = tangent_basis(&normal);
+        let covariance = Matrix3::from_diagonal(&Vector3::new(sigma_rad.powi(2), sigma_rad.powi(2), sigma_m.powi(2)));
+        Self { normal, distance_m, covariance, tangent, face_offset_m }
+    }
+}
+
+/// A solved outlet pose with its holes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OutletPose {
+    /// Outlet frame (metres) to camera frame.
+    pub pose: Isometry3<f64>,
+    pub mode: Mode,
+    /// Hole centres in the camera frame (metres), model order.
+    pub holes_cam_m: Vec<Point3<f64>>,
+    /// Covariance of each hole's position (m²).
+    pub covariances: Vec<Matrix3<f64>>,
+    /// RMS reprojection error of the holes (pixels).
+    pub rms_px: f64,
+}
+
+/// Two unit vectors completing `n` to a right-handed orthonormal basis.
+pub fn tangent_basis(n: &Vector3<f64>) -> [Vector3<f64>; 2] {
+    let helper = if n.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
+    let e1 = n.cross(&helper).normalize();
+    let e2 = n.cross(&e1);
+    [e1, e2]
+}
+
+/// Normalised undistorted coordinates of the pixels, each with its 2x2 inverse
+/// square-root covariance (whitening) from the pixel noise through the lens.
+pub(crate) struct Rays {
+    pub xy: Vec<Vector2<f64>>,
+    pub whiten: Vec<Matrix2<f64>>,
+    pub covariance: Vec<Matrix2<f64>>,
+    /// Model points in metres on z = 0.
+    pub model: Vec<Point3<f64>>,
+}
+
+pub(crate) fn rays(obs: &Observations, needed: usize, mode: &'static str) -> Result<Rays, PoseError> {
+    let n = obs.model_mm.len();
+    if n != obs.pixels.len() {
+        return Err(PoseError::CountMismatch { model: n, pixels: obs.pixels.len() });
+    }
+    if n < needed {
+        return Err(PoseError::TooFewHoles { got: n, needed, mode });
+    }
+    if !(obs.pixel_sigma.is_finite() && obs.pixel_sigma > 0.0) {
+        return Err(PoseError::BadSigma(obs.pixel_sigma));
+    }
+    let cam = obs.camera;
+    let mut out = Rays {
+        xy: Vec::with_capacity(n),
+        whiten: Vec::with_capacity(n),
+        covariance: Vec::with_capacity(n),
+        model: Vec::with_capacity(n),
+    };
+    for (index, (m, p)) in obs.model_mm.iter().zip(obs.pixels).enumerate() {
+        if !(m.x.is_finite() && m.y.is_finite() && p.x.is_finite() && p.y.is_finite()) {
+            return Err(PoseError::NonFinite { index });
+        }
+        let xy = cam.undistort_pixel(*p);
+        // pixel = K · distort(xy): d xy / d pixel = J_distort⁻¹ · diag(1/fx, 1/fy).
+        let jd = cam.distortion_jacobian(xy);
+        let jk = Matrix2::new(cam.fx, 0.0, 0.0, cam.fy) * jd;
+        let inv = jk.try_inverse().ok_or(PoseError::NonFinite { index })?;
+        let cov = inv * inv.transpose() * obs.pixel_sigma.powi(2);
+        // Whitening W with Wᵀ W = cov⁻¹: W = σ⁻¹ · jk.
+        out.whiten.push(jk / obs.pixel_sigma);
+        out.covariance.push(cov);
+        out.xy.push(xy);
+        out.model.push(Point3::new(m.x / 1000.0, m.y / 1000.0, 0.0));
+    }
+    Ok(out)
+}
+
+/// Orients a normal away from the camera (into the wall), checking it is usable
+/// with these rays: not zero, not grazing.
+pub(crate) fn orient_normal(normal: &Vector3<f64>, xy: &[Vector2<f64>]) -> Result<Unit<Vector3<f64>>, PoseError> {
+    let n = Unit::try_new(*normal, 1e-12).ok_or(PoseError::BadNormal)?;
+    if !n.iter().all(|v| v.is_finite()) {
+        return Err(PoseError::BadNormal);
+    }
+    let centre = xy.iter().fold(Vector2::zeros(), |s, p| s + p) / xy.len().max(1) as f64;
+    let sight = Vector3::new(centre.x, centre.y, 1.0).normalize();
+    let cos = n.dot(&sight);
+    let n = if cos < 0.0 { -n } else { n };
+    // Past ~85 degrees the rays meet the plane so obliquely that depth is unstable.
+    let angle_deg = cos.abs().clamp(0.0, 1.0).acos().to_degrees();
+    if angle_deg > 85.0 {
+        return Err(PoseError::GrazingNormal { angle_deg });
+    }
+    for p in xy {
+        if n.dot(&Vector3::new(p.x, p.y, 1.0).normalize()) < 0.05 {
+            return Err(PoseError::GrazingNormal { angle_deg });
+        }
+    }
+    Ok(n)
+}
+
+pub(crate) fn check_not_collinear(model: &[Point3<f64>]) -> Result<(), PoseError> {
+    let c = model.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / model.len() as f64;
+    let mut m = Matrix2::zeros();
+    for p in model {
+        let d = Vector2::new(p.x - c.x, p.y - c.y);
+        m += d * d.transpose();
+    }
+    let eig = m.symmetric_eigenvalues();
+    let (lo, hi) = (eig.min(), eig.max());
+    if hi <= 1e-12 || lo < 1e-6 * hi { Err(PoseError::Collinear) } else { Ok(()) }
+}
+
+/// True when a hole is in front of the camera and finite.
+fn in_front(h: &Point3<f64>) -> bool {
+    h.z > 0.0 && h.coords.iter().all(|v| v.is_finite())
+}
+
+/// Holes in the camera frame and their reprojection RMS (pixels).
+pub(crate) fn holes_and_rms(
+    pose: &Isometry3<f64>,
+    rays: &Rays,
+    camera: &CameraModel,
+    pixels: &[Point2<f64>],
+) -> (Vec<Point3<f64>>, f64) {
+    let holes: Vec<Point3<f64>> = rays.model.iter().map(|p| pose * p).collect();
+    let mut sum = 0.0;
+    for (h, px) in holes.iter().zip(pixels) {
+        sum += camera.project(h).map_or(1e6, |q| (q - px).norm_squared());
+    }
+    let rms = (sum / holes.len().max(1) as f64).sqrt();
+    (holes, rms)
+}
+
+/// The paper's closed form (section V) with a known wall normal (either sign).
+/// Works from two holes. `normal_sigma_rad` is the normal's uncertainty, used for
+/// the covariances only.
+pub fn solve_normal(obs: &Observations, normal: &Vector3<f64>, normal_sigma_rad: f64) -> Result<OutletPose, PoseError> {
+    let rays = rays(obs, 2, "normal")?;
+    let n = orient_normal(normal, &rays.xy)?;
+    let pose = closed_form_normal(&rays.model, &rays.xy, &n).ok_or(PoseError::Collinear)?;
+    let covariances = closed_form::covariances(&rays, &n, normal_sigma_rad.max(0.0));
+    let (holes_cam_m, rms_px) = holes_and_rms(&pose, &rays, obs.camera, obs.pixels);
+    if !holes_cam_m.iter().all(in_front) {
+        return Err(PoseError::BehindCamera);
+    }
+    Ok(OutletPose { pose, mode: Mode::Normal, holes_cam_m, covariances, rms_px })
+}
+
+/// Normal and distance from stereo: the closed form with the measured distance,
+/// then maximum likelihood over the pose with the plane as a prior.
+pub fn solve_plane(obs: &Observations, plane: &PlaneMeasurement) -> Result<OutletPose, PoseError> {
+    let rays = rays(obs, 2, "plane")?;
+    let finite = plane.distance_m.is_finite()
+        && plane.face_offset_m.is_finite()
+        && plane.covariance.iter().all(|v| v.is_finite())
+        && plane.tangent.iter().all(|t| t.iter().all(|v| v.is_finite()));
+    let prior_whiten = plane.covariance.cholesky().and_then(|c| c.l().try_inverse());
+    let (true, Some(prior_whiten)) = (finite, prior_whiten) else { return Err(PoseError::BadPlane) };
+    let n = orient_normal(&plane.normal, &rays.xy)?;
+    let sign = if n.dot(&plane.normal) < 0.0 { -1.0 } else { 1.0 };
+    // The holes' plane: the wall moved towards the camera by the face offset.
+    let d_face = sign * plane.distance_m - plane.face_offset_m;
+    if d_face <= 0.0 {
+        return Err(PoseError::BehindCamera);
+    }
+    let start = closed_form::with_distance(&rays.model, &rays.xy, &n, d_face).ok_or(PoseError::Collinear)?;
+    let prior = lm::Prior {
+        normal: n.into_inner(),
+        distance_m: d_face,
+        tangent: [plane.tangent[0] * sign, plane.tangent[1] * sign],
+        whiten: prior_whiten,
+        with_distance: true,
+    };
+    let fit = lm::refine(&rays, start, Some(&prior)).ok_or(PoseError::Collinear)?;
+    let (holes_cam_m, rms_px) = holes_and_rms(&fit.pose, &rays, obs.camera, obs.pixels);
+    if !holes_cam_m.iter().all(in_front) {
+        return Err(PoseError::BehindCamera);
+    }
+    let covariances = lm::hole_covariances(&fit, &rays.model);
+    Ok(OutletPose { pose: fit.pose, mode: Mode::Plane, holes_cam_m, covariances, rms_px })
+}
+
+/// Planar PnP from pixels alone.
+pub fn solve_mono(obs: &Observations) -> Result<OutletPose, PoseError> {
+    let rays = rays(obs, 4, "mono")?;
+    check_not_collinear(&rays.model)?;
+    let fit = mono::solve(&rays).ok_or(PoseError::Collinear)?;
+    let (holes_cam_m, rms_px) = holes_and_rms(&fit.pose, &rays, obs.camera, obs.pixels);
+    if !holes_cam_m.iter().all(in_front) {
+        return Err(PoseError::BehindCamera);
+    }
+    let covariances = lm::hole_covariances(&fit, &rays.model);
+    Ok(OutletPose { pose: fit.pose, mode: Mode::Mono, holes_cam_m, covariances, rms_px })
+}
+
+/// The Cramér-Rao bound of each hole's position for a true pose: the covariance an
+/// unbiased estimator cannot beat, given the pixel noise and (optionally) the
+/// plane's prior. For `outlet eval`.
+pub fn cramer_rao(
+    obs: &Observations,
+    truth: &Isometry3<f64>,
+    plane: Option<&PlaneMeasurement>,
+    normal_only_sigma_rad: Option<f64>,
+) -> Result<Vec<Matrix3<f64>>, PoseError> {
+    let rays = rays(obs, 2, "bound")?;
+    let n = truth.rotation * Vector3::z();
+    let d = n.dot(&truth.translation.vector);
+    let prior = match (plane, normal_only_sigma_rad) {
+        (Some(p), _) => Some(lm::Prior {
+            normal: n,
+            distance_m: d,
+            // The measurement's covariance is in its own tangent basis.
+            tangent: if p.normal.dot(&n) < 0.0 { [-p.tangent[0], -p.tangent[1]] } else { p.tangent },
+            whiten: p.covariance.cholesky().and_then(|c| c.l().try_inverse()).ok_or(PoseError::BadPlane)?,
+            with_distance: true,
+        }),
+        (None, Some(s)) if s > 0.0 => Some(lm::Prior {
+            normal: n,
+            distance_m: d,
+            tangent: tangent_basis(&n),
+            whiten: Matrix3::from_diagonal(&Vector3::new(1.0 / s, 1.0 / s, 0.0)),
+            with_distance: false,
+        }),
+        _ => None,
+    };
+    let fit = lm::at(&rays, *truth, prior.as_ref()).ok_or(PoseError::Collinear)?;
+    Ok(lm::hole_covariances(&fit, &rays.model))
+}

@@ -1,0 +1,92 @@
+//! Planar PnP from pixels alone: the homography of the holes' plane, decomposed
+//! into a pose; its mirror (the plane tilted the other way about the line of
+//! sight, which explains the pixels almost as well when the outlet is small or
+//! far) is refined too, and the one with the lower reprojection error is kept.
+
+use crate::Rays;
+use crate::lm::{self, Fit};
+use nalgebra::{DMatrix, Isometry3, Matrix3, Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
+
+/// Homography from model (x, y) in metres to normalised image coordinates (DLT
+/// with Hartley normalisation).
+fn homography(rays: &Rays) -> Option<Matrix3<f64>> {
+    let n = rays.model.len();
+    let norm = |pts: &[(f64, f64)]| -> Option<Matrix3<f64>> {
+        let (cx, cy) = pts.iter().fold((0.0, 0.0), |s, p| (s.0 + p.0, s.1 + p.1));
+        let (cx, cy) = (cx / n as f64, cy / n as f64);
+        let d = pts.iter().map(|p| ((p.0 - cx).powi(2) + (p.1 - cy).powi(2)).sqrt()).sum::<f64>() / n as f64;
+        (d > 1e-15).then(|| {
+            let s = std::f64::consts::SQRT_2 / d;
+            Matrix3::new(s, 0.0, -s * cx, 0.0, s, -s * cy, 0.0, 0.0, 1.0)
+        })
+    };
+    let src: Vec<(f64, f64)> = rays.model.iter().map(|p| (p.x, p.y)).collect();
+    let dst: Vec<(f64, f64)> = rays.xy.iter().map(|p| (p.x, p.y)).collect();
+    let (ta, tb) = (norm(&src)?, norm(&dst)?);
+    let mut a = DMatrix::<f64>::zeros(2 * n, 9);
+    for k in 0..n {
+        let p = ta * Vector3::new(src[k].0, src[k].1, 1.0);
+        let q = tb * Vector3::new(dst[k].0, dst[k].1, 1.0);
+        let (x, y, u, v) = (p.x, p.y, q.x, q.y);
+        for (c, val) in [-x, -y, -1.0, 0.0, 0.0, 0.0, u * x, u * y, u].into_iter().enumerate() {
+            a[(2 * k, c)] = val;
+        }
+        for (c, val) in [0.0, 0.0, 0.0, -x, -y, -1.0, v * x, v * y, v].into_iter().enumerate() {
+            a[(2 * k + 1, c)] = val;
+        }
+    }
+    let eig = (a.transpose() * &a).symmetric_eigen();
+    let h = eig.eigenvectors.column(eig.eigenvalues.imin());
+    let hn = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
+    Some(tb.try_inverse()? * hn * ta)
+}
+
+/// H ∝ [r1 r2 t]: the pose, rotation made orthonormal, in front of the camera.
+fn decompose(h: &Matrix3<f64>) -> Option<Isometry3<f64>> {
+    let (h1, h2, h3) = (h.column(0).into_owned(), h.column(1).into_owned(), h.column(2).into_owned());
+    let mut lambda = 2.0 / (h1.norm() + h2.norm());
+    if !lambda.is_finite() {
+        return None;
+    }
+    if (h3 * lambda).z < 0.0 {
+        lambda = -lambda;
+    }
+    let (r1, r2, t) = (h1 * lambda, h2 * lambda, h3 * lambda);
+    let m = Matrix3::from_columns(&[r1, r2, r1.cross(&r2)]);
+    let svd = m.svd(true, true);
+    let (u, vt) = (svd.u?, svd.v_t?);
+    let mut r = u * vt;
+    if r.determinant() < 0.0 {
+        let mut u = u;
+        u.column_mut(2).neg_mut();
+        r = u * vt;
+    }
+    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    Some(Isometry3::from_parts(Translation3::from(t), rotation))
+}
+
+/// The pose whose plane is mirrored about the line of sight to the holes.
+fn mirrored(pose: &Isometry3<f64>, rays: &Rays) -> Option<Isometry3<f64>> {
+    let centre = rays.model.iter().fold(Vector3::zeros(), |s, p| s + (pose * p).coords) / rays.model.len() as f64;
+    let v = centre.try_normalize(1e-12)?;
+    let n = pose.rotation * Vector3::z();
+    let n2 = v * 2.0 * v.dot(&n) - n;
+    let axis = Unit::try_new(n.cross(&n2), 1e-12)?;
+    let angle = n.dot(&n2).clamp(-1.0, 1.0).acos();
+    let q = UnitQuaternion::from_axis_angle(&axis, angle);
+    // Turn about the holes' centroid so that it stays where the pixels put it.
+    let rotation = q * pose.rotation;
+    let model_centre = rays.model.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / rays.model.len() as f64;
+    let t = centre - rotation * model_centre;
+    Some(Isometry3::from_parts(Translation3::from(t), rotation))
+}
+
+pub(crate) fn solve(rays: &Rays) -> Option<Fit> {
+    let start = decompose(&homography(rays)?)?;
+    let first = lm::refine(rays, start, None)?;
+    let second = mirrored(&first.pose, rays).and_then(|m| lm::refine(rays, m, None));
+    match second {
+        Some(s) if lm::cost(rays, &s.pose, None) < lm::cost(rays, &first.pose, None) => Some(s),
+        _ => Some(first),
+    }
+}
