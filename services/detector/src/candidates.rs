@@ -1,316 +1,356 @@
-//! Stage 1, hole candidates (paper section III.A): small dark connected components
-//! of the image thresholded at several levels, kept when their centre is darker
-//! than four pixels around them by the contrast ratio r_C of equation (1).
+//! Stage 1, hole candidates (paper section III.A): small dark connected components of
+//! the image thresholded at several levels, kept when their centre is darker than four
+//! pixels around them by the contrast ratio r_C of the paper's equation (1).
+//!
+//! All levels are done in one pass: the pixels are bucketed by threshold band (counting
+//! sort) and added band after band to a union-find over 8-connected pixels that keeps
+//! each component's bounding box, area and coordinate sums. After each band, i.e. at
+//! each level, the components that changed and still fit the size range are scored.
+//! A component that outgrows `max_side` is marked dead once, so the large bright
+//! regions cost O(1) per pixel. The same hole shows at several levels: duplicates
+//! closer than [`DUPLICATE_RADIUS_PX`] are dropped in favour of the highest contrast.
 
 use crate::Candidate;
 use image::GrayImage;
 use nalgebra::Point2;
 
 /// Parameters of the hole candidate stage (paper section III.A).
+///
+/// `Default` is the paper's setting; [`CandidateParams::high_recall`] is what the
+/// rendered test set needs to miss no hole (see there).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CandidateParams {
-    /// Threshold levels: components of {pixel < level}. Paper: 30 to 150 step 20.
+    /// Threshold levels: the components of {pixel < level} are examined at each.
+    /// Paper: 30 to 150 step 20 (its code: 30 to 160 step 10). Any order; 0 is ignored.
     pub levels: Vec<u8>,
-    /// Minimum contrast ratio r_C (eq. 1). Paper: 1.5.
+    /// Minimum contrast ratio r_C (eq. 1) of a candidate. Paper: 1.5 (its code: 1.5
+    /// for white outlets, 1.3 for orange).
     pub min_contrast: f32,
-    /// Bounding box sides (pixels) a component must have: both sides >= min_side, both <= max_side.
+    /// Smallest bounding box side of a candidate (pixels). Paper's code: 1.
     pub min_side: u32,
+    /// Largest bounding box side of a candidate (pixels); at most 255 is used. The
+    /// paper's code used 20 (its camera: 640x480). 80 keeps the longest opening, the
+    /// 8.7 mm neutral slot, at 20 cm in front of a 1920x1080 camera (f = 1575 px,
+    /// ~70 px plus blur); scale it with the focal length for larger images.
     pub max_side: u32,
-    // Experimental knobs.
-    pub corners: bool,
-    pub eight: bool,
-    pub bbox_centre: bool,
-    pub dedup_radius: f64,
-    pub dedup: u8,
-    pub smoothing: u8,
+    /// Smallest area of a candidate (pixels). Not in the paper (1 = no limit).
+    pub min_area: u32,
 }
 
 impl Default for CandidateParams {
     fn default() -> Self {
-        Self {
-            levels: (30..=150).step_by(20).collect(),
-            min_contrast: 1.5,
-            min_side: 1,
-            max_side: 80,
-            corners: false,
-            eight: false,
-            bbox_centre: false,
-            dedup_radius: 2.0,
-            dedup: 0,
-            smoothing: 1,
-        }
+        Self { levels: (30..=150).step_by(20).collect(), min_contrast: 1.5, min_side: 1, max_side: 80, min_area: 1 }
     }
 }
 
-const NONE: u32 = u32::MAX;
+impl CandidateParams {
+    /// Settings that miss no hole of the rendered scenarios (measured on 7 x 20 images
+    /// per resolution, see `tests/candidates.rs`), at ~25 candidates per 640x480 image:
+    /// - levels 10 to 250 step 10: over-exposed plates leave slots at grey 160-200, dark
+    ///   frames holes below 30, and finer steps catch a hole before it merges with a
+    ///   shadow;
+    /// - contrast 1.2: a 2 mm slot 45-50 cm away is ~2 px wide, and sensor blur and the
+    ///   3x3 smoothing leave its centre at only 1.22-1.3 times the face around it;
+    /// - area >= 8 px: drops sensor-noise specks, which otherwise double the count in
+    ///   dark frames; the smallest hole (a slot at 50 cm, 640x480) covers ~19 px.
+    pub fn high_recall() -> Self {
+        Self { levels: (10..=250).step_by(10).collect(), min_contrast: 1.2, min_area: 8, ..Self::default() }
+    }
+}
 
-/// A component of the tree: bounding box, area and coordinate sums (wrapping: only
-/// read for components small enough to be candidates).
+/// Candidates closer than this (pixels) are one blob seen at several levels.
+pub const DUPLICATE_RADIUS_PX: f64 = 2.0;
+
+pub static CENTRE_MODE: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+/// Label of a pixel not yet added.
+const NONE: u32 = u32::MAX;
+/// Label of a pixel (or parent of a root) in a component too large to be a hole.
+const DEAD: u32 = u32::MAX - 1;
+
+/// A component's bounding box, area and coordinate sums.
 #[derive(Debug, Clone, Copy)]
 struct Blob {
-    x0: u16,
-    y0: u16,
-    x1: u16,
-    y1: u16,
+    x0: u32,
+    y0: u32,
+    x1: u32,
+    y1: u32,
     area: u32,
-    sum_x: u32,
-    sum_y: u32,
+    sum_x: u64,
+    sum_y: u64,
+    sum_v: u64,
+    sum_s: u64,
 }
 
 impl Blob {
-    fn pixel(x: u16, y: u16) -> Self {
-        Self { x0: x, y0: y, x1: x, y1: y, area: 1, sum_x: x as u32, sum_y: y as u32 }
+    fn new(x: u32, y: u32, v: u8, sv: u8) -> Self {
+        Self {
+            x0: x,
+            y0: y,
+            x1: x,
+            y1: y,
+            area: 1,
+            sum_x: x as u64,
+            sum_y: y as u64,
+            sum_v: v as u64,
+            sum_s: sv as u64,
+        }
     }
+
+    fn add(&mut self, x: u32, y: u32, v: u8, sv: u8) {
+        self.merge(&Self::new(x, y, v, sv));
+    }
+
     fn merge(&mut self, o: &Blob) {
         self.x0 = self.x0.min(o.x0);
         self.y0 = self.y0.min(o.y0);
         self.x1 = self.x1.max(o.x1);
         self.y1 = self.y1.max(o.y1);
         self.area += o.area;
-        self.sum_x = self.sum_x.wrapping_add(o.sum_x);
-        self.sum_y = self.sum_y.wrapping_add(o.sum_y);
+        self.sum_x += o.sum_x;
+        self.sum_y += o.sum_y;
+        self.sum_v += o.sum_v;
+        self.sum_s += o.sum_s;
     }
+
     fn size(&self) -> [u32; 2] {
-        [(self.x1 - self.x0) as u32 + 1, (self.y1 - self.y0) as u32 + 1]
+        [self.x1 - self.x0 + 1, self.y1 - self.y0 + 1]
     }
 }
 
+/// Root of node `n`, or `None` if its component is dead (path halving).
 #[inline]
-fn find(parent: &mut [u32], mut n: u32) -> u32 {
-    while parent[n as usize] != n {
-        let up = parent[parent[n as usize] as usize];
-        parent[n as usize] = up;
-        n = up;
+fn find(parent: &mut [u32], mut n: u32) -> Option<u32> {
+    loop {
+        let p = parent[n as usize];
+        if p == n {
+            return Some(n);
+        }
+        if p == DEAD {
+            return None;
+        }
+        let g = parent[p as usize];
+        parent[n as usize] = g;
+        if g == DEAD {
+            return None;
+        }
+        n = g;
     }
-    n
 }
 
-pub fn smooth_with(grey: &GrayImage, kind: u8) -> GrayImage {
-    match kind {
-        0 => grey.clone(),
-        1 => gauss3(grey),
-        _ => smooth3(grey),
-    }
-}
-
-/// 3x3 binomial filter, borders replicated.
-pub fn gauss3(grey: &GrayImage) -> GrayImage {
-    let (w, h) = (grey.width() as usize, grey.height() as usize);
-    let src = grey.as_raw();
-    let mut rows = vec![0u16; w * h];
-    for (s, r) in src.chunks_exact(w.max(1)).zip(rows.chunks_exact_mut(w.max(1))) {
-        for x in 0..w {
-            r[x] = s[x.saturating_sub(1)] as u16 + 2 * s[x] as u16 + s[(x + 1).min(w - 1)] as u16;
-        }
-    }
-    let mut out = vec![0u8; w * h];
-    for y in 0..h {
-        let (a, b, c) = (y.saturating_sub(1) * w, y * w, (y + 1).min(h - 1) * w);
-        for x in 0..w {
-            out[b + x] = ((rows[a + x] + 2 * rows[b + x] + rows[c + x] + 8) / 16) as u8;
-        }
-    }
-    GrayImage::from_raw(w as u32, h as u32, out).unwrap_or_default()
-}
-
-/// 3x3 box filter, borders replicated.
-pub fn smooth3(grey: &GrayImage) -> GrayImage {
-    let (w, h) = (grey.width() as usize, grey.height() as usize);
-    let src = grey.as_raw();
-    let mut rows = vec![0u16; w * h];
-    for (s, r) in src.chunks_exact(w.max(1)).zip(rows.chunks_exact_mut(w.max(1))) {
-        for x in 0..w {
-            r[x] = s[x.saturating_sub(1)] as u16 + s[x] as u16 + s[(x + 1).min(w - 1)] as u16;
-        }
-    }
-    let mut out = vec![0u8; w * h];
-    for y in 0..h {
-        let (a, b, c) = (y.saturating_sub(1) * w, y * w, (y + 1).min(h - 1) * w);
-        for x in 0..w {
-            out[b + x] = ((rows[a + x] + rows[b + x] + rows[c + x] + 4) / 9) as u8;
-        }
-    }
-    GrayImage::from_raw(w as u32, h as u32, out).unwrap_or_default()
-}
-
-/// Hole candidates of a grey image (see [`crate::grey_of`]).
+/// Hole candidates of a grey image (see [`crate::grey_of`]), highest contrast first.
+/// Never panics; an empty image or one without levels gives none.
 pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candidate> {
     let (w, h) = (grey.width() as usize, grey.height() as usize);
-    if w == 0 || h == 0 || w > u16::MAX as usize || h > u16::MAX as usize {
+    let _span = tracing::debug_span!("candidates", w, h).entered();
+    let mut levels: Vec<u8> = params.levels.iter().copied().filter(|&l| l > 0).collect();
+    levels.sort_unstable();
+    levels.dedup();
+    let padded = (w + 2).checked_mul(h + 2).filter(|&n| n < DEAD as usize);
+    let (Some(&top), Some(padded)) = (levels.last(), padded) else { return Vec::new() };
+    if w == 0 || h == 0 {
         return Vec::new();
     }
-    let smooth = smooth_with(grey, params.smoothing);
-    let pix = smooth.as_raw();
-    let mut is_level = [false; 257];
-    for &l in &params.levels {
-        is_level[l as usize] = true;
+    let smooth = smooth_3x3(grey.as_raw(), w, h);
+    let raw = grey.as_raw();
+
+    // Band b holds the grey values in [levels[b-1], levels[b]): within a band the order
+    // of the pixels does not matter, and raster order keeps memory accesses local.
+    let bands = levels.len();
+    let mut band_of = [u8::MAX; 256];
+    for (v, band) in band_of.iter_mut().enumerate().take(top as usize) {
+        *band = levels.partition_point(|&l| l as usize <= v) as u8;
     }
-    let top = (1..=255).rev().find(|&l| is_level[l]).unwrap_or(0);
-    // Counting sort of the pixels darker than the top level.
-    let mut start = [0u32; 257];
-    for &v in pix {
-        start[v as usize + 1] += 1;
+    let mut histogram = [0u32; 256];
+    for &v in &smooth {
+        histogram[v as usize] += 1;
     }
-    for v in 1..257 {
-        start[v] += start[v - 1];
+    let mut start = vec![0u32; bands + 1];
+    for (&count, &band) in histogram.iter().zip(&band_of).take(top as usize) {
+        start[band as usize + 1] += count;
     }
-    let n = start[top] as usize;
-    let mut order = vec![0u32; n];
-    let mut next = start;
-    for (i, &v) in pix.iter().enumerate() {
-        if (v as usize) < top {
-            order[next[v as usize] as usize] = i as u32;
-            next[v as usize] += 1;
+    for b in 1..=bands {
+        start[b] += start[b - 1];
+    }
+    // Pixels are indexed in a frame one pixel wider on each side, so that every pixel
+    // has 8 neighbours to look at.
+    let stride = w + 2;
+    let mut order = vec![0u32; start[bands] as usize];
+    let mut next = start.clone();
+    for (y, row) in smooth.chunks_exact(w).enumerate() {
+        let p0 = (y + 1) * stride + 1;
+        for (x, &v) in row.iter().enumerate() {
+            let band = band_of[v as usize] as usize;
+            if band < bands {
+                order[next[band] as usize] = (p0 + x) as u32;
+                next[band] += 1;
+            }
         }
     }
-    // Node k is the k-th pixel in intensity order; label maps pixels to nodes.
-    let mut label = vec![NONE; w * h];
-    let mut parent: Vec<u32> = Vec::with_capacity(n);
-    let mut blobs: Vec<Blob> = Vec::with_capacity(n);
-    // Roots that may still be candidates, with the area they had when last looked at.
+
+    let mut label = vec![NONE; padded];
+    let mut parent: Vec<u32> = Vec::new();
+    let mut blobs: Vec<Blob> = Vec::new();
+    // Live roots, with the area they had when last scored.
     let mut alive: Vec<(u32, u32)> = Vec::new();
     let mut found = Vec::new();
     let max_side = params.max_side.min(255);
-    for v in 0..=top {
-        if is_level[v] {
-            alive.retain_mut(|(a, seen)| {
-                if parent[*a as usize] != *a {
-                    return false;
-                }
-                let b = &blobs[*a as usize];
-                let [sw, sh] = b.size();
-                if sw > max_side || sh > max_side {
-                    return false;
-                }
-                if sw >= params.min_side && sh >= params.min_side && *seen != b.area {
-                    *seen = b.area;
-                    if let Some(c) = candidate(b, pix, w, h, v as u8, params) {
-                        found.push(c);
-                    }
-                }
-                true
-            });
-        }
-        if v == top {
-            break;
-        }
-        for &i in &order[start[v] as usize..start[v + 1] as usize] {
-            let i = i as usize;
-            let (x, y) = (i % w, i / w);
-            let node = parent.len() as u32;
-            label[i] = node;
-            parent.push(node);
-            blobs.push(Blob::pixel(x as u16, y as u16));
-            alive.push((node, 0));
-            let mut root = node;
-            let mut join = |j: usize| {
-                let l = label[j];
-                if l == NONE {
-                    return;
-                }
-                let r = find(&mut parent, l);
-                if r == root {
-                    return;
-                }
-                let (big, small) =
-                    if blobs[r as usize].area >= blobs[root as usize].area { (r, root) } else { (root, r) };
-                parent[small as usize] = big;
-                let s = blobs[small as usize];
-                blobs[big as usize].merge(&s);
-                root = big;
-            };
-            if x > 0 {
-                join(i - 1);
+    for (b, &level) in levels.iter().enumerate() {
+        for &p in &order[start[b] as usize..start[b + 1] as usize] {
+            let p = p as usize;
+            let xy = || ((p % stride - 1) as u32, (p / stride - 1) as u32);
+            let (up, down) = (&label[p - stride - 1..p - stride + 2], &label[p + stride - 1..p + stride + 2]);
+            let around = [up[0], up[1], up[2], label[p - 1], label[p + 1], down[0], down[1], down[2]];
+            let lowest = around.iter().fold(NONE, |a, &l| a.min(l));
+            if lowest >= DEAD {
+                // No live neighbour: one more pixel of a dead component, or a new one.
+                label[p] = if lowest == DEAD {
+                    DEAD
+                } else {
+                    let node = parent.len() as u32;
+                    parent.push(node);
+                    let (x, y) = xy();
+                    blobs.push(Blob::new(x, y, raw[y as usize * w + x as usize], smooth[y as usize * w + x as usize]));
+                    alive.push((node, 0));
+                    node
+                };
+                continue;
             }
-            if x + 1 < w {
-                join(i + 1);
+            // The distinct live roots around p (at most 4 with 8-connectivity).
+            let (mut roots, mut count, mut dead) = ([0u32; 8], 0, false);
+            for l in around {
+                match l {
+                    NONE => {}
+                    DEAD => dead = true,
+                    l => match find(&mut parent, l) {
+                        None => dead = true,
+                        Some(r) if !roots[..count].contains(&r) => {
+                            roots[count] = r;
+                            count += 1;
+                        }
+                        Some(_) => {}
+                    },
+                }
             }
-            if y > 0 {
-                join(i - w);
+            let roots = &roots[..count];
+            if dead {
+                label[p] = DEAD;
+                for &r in roots {
+                    parent[r as usize] = DEAD;
+                }
+                continue;
             }
-            if y + 1 < h {
-                join(i + w);
+            let Some(&first) = roots.first() else { continue };
+            let keep = roots
+                .iter()
+                .copied()
+                .fold(first, |a, r| if blobs[r as usize].area > blobs[a as usize].area { r } else { a });
+            for &r in roots.iter().filter(|&&r| r != keep) {
+                parent[r as usize] = keep;
+                let other = blobs[r as usize];
+                blobs[keep as usize].merge(&other);
             }
-            if params.eight {
-                if y > 0 && x > 0 {
-                    join(i - w - 1);
-                }
-                if y > 0 && x + 1 < w {
-                    join(i - w + 1);
-                }
-                if y + 1 < h && x > 0 {
-                    join(i + w - 1);
-                }
-                if y + 1 < h && x + 1 < w {
-                    join(i + w + 1);
-                }
+            let blob = &mut blobs[keep as usize];
+            let (x, y) = xy();
+            blob.add(x, y, raw[y as usize * w + x as usize], smooth[y as usize * w + x as usize]);
+            label[p] = keep;
+            let [sw, sh] = blob.size();
+            if sw > max_side || sh > max_side {
+                parent[keep as usize] = DEAD;
             }
         }
+        alive.retain_mut(|(node, seen)| {
+            if parent[*node as usize] != *node {
+                return false;
+            }
+            let blob = &blobs[*node as usize];
+            if blob.area != *seen {
+                *seen = blob.area;
+                found.extend(score(blob, &smooth, w, h, level, params));
+            }
+            true
+        });
     }
-    suppress_duplicates(found, params)
+    let kept = suppress_duplicates(found, &mut label, stride, h + 2);
+    tracing::debug!(candidates = kept.len());
+    kept
 }
 
-fn candidate(b: &Blob, pix: &[u8], w: usize, h: usize, level: u8, params: &CandidateParams) -> Option<Candidate> {
-    let [sw, sh] = b.size();
-    let (cx, cy) = if params.bbox_centre {
-        ((b.x0 as f64 + b.x1 as f64) / 2.0, (b.y0 as f64 + b.y1 as f64) / 2.0)
-    } else {
-        (b.sum_x as f64 / b.area as f64, b.sum_y as f64 / b.area as f64)
-    };
-    let (px, py) = (cx.round() as i64, cy.round() as i64);
-    let at = |x: i64, y: i64| -> Option<f32> {
-        (x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h).then(|| pix[y as usize * w + x as usize] as f32)
-    };
-    let centre = at(px, py)?;
-    let probes: [(i64, i64); 4] = if params.corners {
-        let d = (0.75 * sw.max(sh) as f64).round() as i64;
-        [(d, d), (-d, d), (d, -d), (-d, -d)]
-    } else {
-        let (dx, dy) = (sw as i64, sh as i64);
-        [(dx, 0), (-dx, 0), (0, dy), (0, -dy)]
-    };
-    let (mut sum, mut count) = (0.0, 0);
-    for (dx, dy) in probes {
-        if let Some(v) = at(px + dx, py + dy) {
-            sum += v;
-            count += 1;
-        }
-    }
-    if count == 0 {
+/// The candidate of a component at a level, if its size and contrast qualify.
+fn score(blob: &Blob, smooth: &[u8], w: usize, h: usize, level: u8, params: &CandidateParams) -> Option<Candidate> {
+    let [sw, sh] = blob.size();
+    if sw.min(sh) < params.min_side || blob.area < params.min_area {
         return None;
     }
-    let contrast = sum / count as f32 / centre.max(1.0);
-    (contrast >= params.min_contrast).then(|| Candidate {
-        centre: Point2::new(cx, cy),
-        size: [sw, sh],
-        area: b.area,
-        contrast,
-        level,
-    })
+    let centre = Point2::new(blob.sum_x as f64 / blob.area as f64, blob.sum_y as f64 / blob.area as f64);
+    let (x0, y0) = (centre.x.round() as i64, centre.y.round() as i64);
+    let at = |x: i64, y: i64| {
+        (x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h).then(|| smooth[y as usize * w + x as usize] as f32)
+    };
+    let inside = at(x0, y0)?;
+    let inside = match CENTRE_MODE.load(std::sync::atomic::Ordering::Relaxed) {
+        0 => inside,
+        1 => blob.sum_v as f32 / blob.area as f32,
+        2 => blob.sum_s as f32 / blob.area as f32,
+        _ => inside.min(blob.sum_v as f32 / blob.area as f32),
+    };
+    // Eq. (1): p0 +- s_x x and p0 +- s_y y; probes outside the image are left out.
+    let (dx, dy) = (sw as i64, sh as i64);
+    let (sum, n) = [(dx, 0), (-dx, 0), (0, dy), (0, -dy)]
+        .into_iter()
+        .filter_map(|(ox, oy)| at(x0 + ox, y0 + oy))
+        .fold((0.0, 0), |(s, n), v| (s + v, n + 1));
+    if n == 0 {
+        return None;
+    }
+    // A black centre counts as grey 1: any brighter surround is then high contrast.
+    let contrast = sum / n as f32 / inside.max(1.0);
+    (contrast >= params.min_contrast).then_some(Candidate { centre, size: [sw, sh], area: blob.area, contrast, level })
 }
 
-fn suppress_duplicates(mut found: Vec<Candidate>, params: &CandidateParams) -> Vec<Candidate> {
-    if params.dedup_radius < 0.0 {
-        return found;
-    }
+/// Keeps the highest contrast candidate of each group closer than
+/// [`DUPLICATE_RADIUS_PX`]; `grid` (padded image size, any content) marks kept centres.
+fn suppress_duplicates(mut found: Vec<Candidate>, grid: &mut [u32], stride: usize, rows: usize) -> Vec<Candidate> {
     found.sort_by(|a, b| b.contrast.total_cmp(&a.contrast));
+    grid.fill(NONE);
+    let reach = DUPLICATE_RADIUS_PX.ceil() as usize + 1;
     let mut kept: Vec<Candidate> = Vec::with_capacity(found.len());
-    let inside = |c: &Candidate, k: &Candidate| {
-        (c.centre.x - k.centre.x).abs() <= k.size[0] as f64 / 2.0
-            && (c.centre.y - k.centre.y).abs() <= k.size[1] as f64 / 2.0
-    };
     for c in found {
-        let dup = |k: &Candidate| match params.dedup {
-            0 => (k.centre - c.centre).norm() <= params.dedup_radius,
-            1 => inside(&c, k) && inside(k, &c),
-            _ => {
-                (k.centre - c.centre).norm()
-                    <= params.dedup_radius.max(0.25 * k.size[0].min(k.size[1]).max(c.size[0].min(c.size[1])) as f64)
-            }
-        };
-        if !kept.iter().any(dup) {
+        let (cx, cy) = (c.centre.x.round() as usize + 1, c.centre.y.round() as usize + 1);
+        let near = (cy.saturating_sub(reach)..(cy + reach + 1).min(rows)).any(|y| {
+            (cx.saturating_sub(reach)..(cx + reach + 1).min(stride)).any(|x| {
+                let k = grid[y * stride + x];
+                k != NONE && (kept[k as usize].centre - c.centre).norm() <= DUPLICATE_RADIUS_PX
+            })
+        });
+        if !near {
+            grid[cy * stride + cx] = kept.len() as u32;
             kept.push(c);
         }
     }
     kept
+}
+
+/// 3x3 binomial smoothing ([1 2 1] / 4 each way), borders replicated.
+fn smooth_3x3(src: &[u8], w: usize, h: usize) -> Vec<u8> {
+    let mut rows = vec![0u16; w * h];
+    for (s, r) in src.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
+        if w == 1 {
+            r[0] = 4 * s[0] as u16;
+            continue;
+        }
+        r[0] = 3 * s[0] as u16 + s[1] as u16;
+        r[w - 1] = s[w - 2] as u16 + 3 * s[w - 1] as u16;
+        for (o, t) in r[1..w - 1].iter_mut().zip(s.windows(3)) {
+            *o = t[0] as u16 + 2 * t[1] as u16 + t[2] as u16;
+        }
+    }
+    let mut out = vec![0u8; w * h];
+    for (y, o) in out.chunks_exact_mut(w).enumerate() {
+        let row = |y: usize| &rows[y * w..(y + 1) * w];
+        let (a, b, c) = (row(y.saturating_sub(1)), row(y), row((y + 1).min(h - 1)));
+        for (((o, &a), &b), &c) in o.iter_mut().zip(a).zip(b).zip(c) {
+            *o = ((a + 2 * b + c + 8) >> 4) as u8;
+        }
+    }
+    out
 }

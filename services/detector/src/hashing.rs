@@ -54,11 +54,11 @@ pub struct HashParams {
     /// The grid covers affine coordinates in [-range, range]^2; holes outside do
     /// not vote (original: 5).
     pub range: f64,
-    /// Each template hole is also filed in the bins up to this many away (1: a 3x3
-    /// block, +-0.33..0.5 in affine coordinates), so that noise and perspective,
-    /// which bend the affine coordinates of far holes, still vote. Votes only
-    /// choose what to score; the score decides.
-    pub vote_spread: usize,
+    /// Each template hole is filed in every bin within this many bins of its
+    /// affine coordinates (0.5: the 2x2 block nearest to it, so a candidate up to
+    /// half a bin, 0.17, off still votes), for noise and perspective, which bend
+    /// the affine coordinates of far holes. Votes only choose what to score.
+    pub vote_tolerance: f64,
     /// A model basis's angle must be at least this far from 0 and pi, radians
     /// (original: 0.5).
     pub min_basis_angle: f64,
@@ -104,13 +104,23 @@ pub struct HashParams {
     /// Largest ratio of the local scales (sqrt of the Jacobian's determinant) of
     /// two holes. A 2x2 outlet 10 cm wide at 20 cm seen 60 degrees off-axis: 1.9.
     pub max_scale_variation: f64,
-    /// Largest RMS distance of the matched candidates from the fitted transform's
-    /// projections, as a fraction of the predicted hole size.
-    pub max_rms_ratio: f64,
+    /// Each match must be predicted by a fit to the other matches within this
+    /// fraction of its predicted size (leave-one-out).
+    pub max_loo_ratio: f64,
+    /// A hole matched within its leave-one-out error r is as good as one within
+    /// this (pixels): candidate centres are no more precise.
+    pub position_precision_px: f64,
+    /// Largest expected number of chance hypotheses at least as good as the one
+    /// reported (number of false alarms, a-contrario as in Moisan and Stival's
+    /// AC-RANSAC), given the density of the unused candidates around it. Lets 4 of
+    /// 6 holes through among few candidates and asks for more, and tighter, among
+    /// many: with 150 random candidates 4-of-6 coincidences are common.
+    pub max_nfa: f64,
     /// Refits (affine, then homography) of a hypothesis, each followed by a re-score.
     pub refine_iterations: usize,
     /// Matches needed to fit a homography (8 unknowns); fewer get a least-squares
-    /// affine fit (6 unknowns). 5 leaves 2 redundant equations.
+    /// affine fit (6 unknowns). 6 leaves 4 redundant equations; with 5, a
+    /// homography bends to fit almost any fifth point.
     pub min_homography_matches: usize,
     /// Another interpretation of the candidates (sharing fewer than 3 hole-candidate
     /// pairs with the best) must score at least this much lower, or the answer is
@@ -127,10 +137,10 @@ impl Default for HashParams {
         Self {
             bins: 30,
             range: 5.0,
-            vote_spread: 1,
+            vote_tolerance: 0.5,
             min_basis_angle: 0.5,
             min_online_angle: 0.25,
-            neighbours: 6,
+            neighbours: 4,
             min_votes: None,
             max_dist_ratio: 0.6,
             min_max_dist_px: 1.5,
@@ -138,12 +148,14 @@ impl Default for HashParams {
             size_tolerance: 2.5,
             min_score_fraction: 2.0 / 3.0,
             min_score_floor: 4,
-            min_axis_ratio: 0.45,
+            min_axis_ratio: 0.5,
             max_scale_variation: 2.5,
-            max_rms_ratio: 0.25,
+            max_loo_ratio: 0.4,
+            position_precision_px: 0.5,
+            max_nfa: 1e-2,
             refine_iterations: 3,
-            min_homography_matches: 5,
-            rival_margin: 2,
+            min_homography_matches: 6,
+            rival_margin: 1,
         }
     }
 }
@@ -181,6 +193,8 @@ pub struct HashTable {
     range: f64,
     /// Largest distance between two holes (template units).
     extent: f64,
+    /// Smallest distance between two holes (template units).
+    min_gap: f64,
     /// Mean of the holes (template units).
     centroid: Point2<f64>,
 }
@@ -223,8 +237,9 @@ fn axis_ratio(j: &Matrix2<f64>) -> f64 {
     let f = (j[(0, 0)] - j[(1, 1)]) / 2.0;
     let g = (j[(1, 0)] + j[(0, 1)]) / 2.0;
     let h = (j[(1, 0)] - j[(0, 1)]) / 2.0;
-    let q = e.hypot(h);
-    let r = f.hypot(g);
+    // Values are pixels per template unit: no overflow, and hypot is slow.
+    let q = (e * e + h * h).sqrt();
+    let r = (f * f + g * g).sqrt();
     if q + r > 0.0 { (q - r).abs() / (q + r) } else { 0.0 }
 }
 
@@ -249,6 +264,7 @@ impl HashTable {
             bins,
             range,
             extent: 0.0,
+            min_gap: 0.0,
             centroid: Point2::origin(),
         };
         let finite = table.points.iter().all(|p| p.x.is_finite() && p.y.is_finite());
@@ -266,10 +282,11 @@ impl HashTable {
         if min_gap <= 1e-9 * table.extent || table.extent <= 0.0 {
             return table;
         }
+        table.min_gap = min_gap;
         table.centroid = Point2::from(table.points.iter().map(|p| p.coords).sum::<Vector2<f64>>() / n as f64);
 
         let sin_min = finite_or(params.min_basis_angle, 0.5).clamp(0.0, std::f64::consts::FRAC_PI_2).sin().max(1e-6);
-        let spread = params.vote_spread.min(bins) as isize;
+        let tolerance = finite_or(params.vote_tolerance, 0.5).clamp(0.0, bins as f64);
         let class: Vec<Option<u8>> = table.classes.iter().map(|&c| class_index(c)).collect();
         let mut entries: Vec<(u32, u32)> = Vec::new();
         for (o, po) in table.points.iter().enumerate() {
@@ -298,14 +315,12 @@ impl HashTable {
                         }
                         let d = pl - po;
                         let (p, q) = (cross(d, vb) / det, cross(va, d) / det);
-                        let (Some(bx), Some(by)) = (table.bin(p), table.bin(q)) else { continue };
-                        for dy in -spread..=spread {
-                            for dx in -spread..=spread {
-                                let (x, y) = (bx as isize + dx, by as isize + dy);
-                                if x < 0 || y < 0 || x >= bins as isize || y >= bins as isize {
-                                    continue;
-                                }
-                                let key = table.bucket(signature, cl as usize, x as usize, y as usize);
+                        // Every bin that [p - t, p + t] x [q - t, q + t] touches (t in bins).
+                        let Some([x0, x1]) = table.bin_span(p, tolerance) else { continue };
+                        let Some([y0, y1]) = table.bin_span(q, tolerance) else { continue };
+                        for y in y0..=y1 {
+                            for x in x0..=x1 {
+                                let key = table.bucket(signature, cl as usize, x, y);
                                 entries.push((key as u32, basis));
                             }
                         }
@@ -348,10 +363,16 @@ impl HashTable {
         &self.classes
     }
 
-    fn bin(&self, coordinate: f64) -> Option<usize> {
+    /// First and last bin within `tolerance` bins of a coordinate, clipped to the
+    /// grid; `None` when the coordinate is off the grid.
+    fn bin_span(&self, coordinate: f64, tolerance: f64) -> Option<[usize; 2]> {
         let t = (coordinate + self.range) / (2.0 * self.range) * self.bins as f64;
-        // NaN fails both comparisons.
-        if t >= 0.0 && t < self.bins as f64 { Some(t as usize) } else { None }
+        if !(t >= 0.0 && t < self.bins as f64) {
+            return None;
+        }
+        let lo = (t - tolerance).max(0.0) as usize;
+        let hi = ((t + tolerance).max(0.0) as usize).min(self.bins - 1);
+        Some([lo, hi])
     }
 
     fn bucket(&self, signature: usize, class: usize, x: usize, y: usize) -> usize {
@@ -450,14 +471,15 @@ impl Grid {
 
     /// Ranges of cells (x0..x1, y0..y1) that may hold points within `r` of `p`.
     fn cells_near(&self, p: Point2<f64>, r: f64) -> Option<[usize; 4]> {
-        let lx = ((p.x - r - self.origin.x) * self.inv_cell).floor();
-        let hx = ((p.x + r - self.origin.x) * self.inv_cell).floor();
-        let ly = ((p.y - r - self.origin.y) * self.inv_cell).floor();
-        let hy = ((p.y + r - self.origin.y) * self.inv_cell).floor();
+        let lx = (p.x - r - self.origin.x) * self.inv_cell;
+        let hx = (p.x + r - self.origin.x) * self.inv_cell;
+        let ly = (p.y - r - self.origin.y) * self.inv_cell;
+        let hy = (p.y + r - self.origin.y) * self.inv_cell;
         // NaN fails these comparisons too.
         if !(hx >= 0.0 && hy >= 0.0 && lx < self.nx as f64 && ly < self.ny as f64) {
             return None;
         }
+        // Truncation is the floor for the non-negative values kept.
         let clamp = |v: f64, n: usize| (v.max(0.0) as usize).min(n - 1);
         Some([clamp(lx, self.nx), clamp(hx, self.nx) + 1, clamp(ly, self.ny), clamp(hy, self.ny) + 1])
     }
@@ -479,10 +501,13 @@ struct Projection {
 struct Accepted {
     score: usize,
     rms_px: f64,
+    /// See [`Search::log_nfa`].
+    log_nfa: f64,
     transform: Matrix3<f64>,
     projection: Projection,
     /// Offset of its assignment in `Search::accepted_assignments`.
     start: usize,
+    key: u64,
 }
 
 type Assignment = [u32; MAX_TEMPLATE_HOLES];
@@ -513,9 +538,14 @@ struct Search<'a> {
     tried: HashSet<u64>,
     /// Final assignments already accepted.
     seen: HashSet<u64>,
+    /// Refined assignments with enough matches, `holes` entries each.
+    refined: Vec<u32>,
     accepted: Vec<Accepted>,
     accepted_assignments: Vec<u32>,
     hypotheses: usize,
+    /// Hypotheses implicitly tested: online bases times model bases of their
+    /// class signature.
+    tests: usize,
 }
 
 impl<'a> Search<'a> {
@@ -673,6 +703,12 @@ impl<'a> Search<'a> {
         if score < 4 || !self.tried.insert(assignment_hash(&assignment[..self.holes])) {
             return;
         }
+        // Part of an outlet already refined: it would refine to the same.
+        let n = self.holes;
+        let part_of = |found: &[u32]| assignment[..n].iter().zip(found).all(|(&a, &f)| a == NONE || a == f);
+        if self.refined.chunks_exact(n).any(part_of) {
+            return;
+        }
         for _ in 0..self.params.refine_iterations {
             let Some(t) = self.fit(&assignment) else { break };
             let Some(proj) = self.project(&t) else { break };
@@ -691,37 +727,135 @@ impl<'a> Search<'a> {
         if score < self.min_score {
             return;
         }
-        self.accept(score, &assignment);
+        self.refined.extend_from_slice(&assignment[..n]);
+        self.accept(assignment);
     }
 
-    /// Final fit and checks of a hypothesis with enough matches.
-    fn accept(&mut self, score: usize, assignment: &Assignment) {
+    /// Verifies a hypothesis with enough matches and keeps it. Each match must be
+    /// predicted by the others (a fit without it) within `max_loo_ratio` of its
+    /// size; the worst offender is dropped until all are. A fit through a match
+    /// absorbs part of its error, so chance matches pass an ordinary residual test
+    /// far more often than this one.
+    fn accept(&mut self, mut assignment: Assignment) {
         let key = assignment_hash(&assignment[..self.holes]);
-        if self.seen.contains(&key) {
+        if !self.seen.insert(key) {
             return;
         }
-        let Some(transform) = self.fit(assignment) else { return };
-        let Some(projection) = self.project(&transform) else { return };
-        let (mut sum_px, mut sum_norm, mut n) = (0.0, 0.0, 0usize);
-        for (j, &i) in assignment[..self.holes].iter().enumerate() {
-            if i == NONE {
-                continue;
+        let Some(mut transform) = self.fit(&assignment) else { return };
+        let Some(mut projection) = self.project(&transform) else { return };
+        let mut errors = [0.0f64; MAX_TEMPLATE_HOLES];
+        loop {
+            let mut n = 0;
+            let mut worst = (0.0f64, NONE);
+            for j in 0..self.holes {
+                let i = assignment[j];
+                if i == NONE {
+                    continue;
+                }
+                n += 1;
+                assignment[j] = NONE;
+                let predicted = self.fit(&assignment).map(|t| apply(&t, self.table.points[j]));
+                assignment[j] = i;
+                errors[j] = predicted.map_or(f64::INFINITY, |p| (p - self.cand.pos[i as usize]).norm());
+                let ratio = errors[j] / projection.size[j];
+                // NaN is the worst of all.
+                if !(ratio <= worst.0) {
+                    worst = (ratio, j as u32);
+                }
             }
-            let d = (self.cand.pos[i as usize] - projection.pos[j]).norm();
-            if !(d < self.max_dist(projection.size[j])) {
+            if n < self.min_score {
                 return;
             }
-            sum_px += d * d;
-            sum_norm += (d / projection.size[j]).powi(2);
-            n += 1;
+            if worst.0 <= self.params.max_loo_ratio {
+                break;
+            }
+            assignment[worst.1 as usize] = NONE;
+            if n - 1 < self.min_score {
+                return;
+            }
+            let Some(t) = self.fit(&assignment) else { return };
+            let Some(p) = self.project(&t) else { return };
+            transform = t;
+            projection = p;
         }
-        if n < self.min_score || !((sum_norm / n as f64).sqrt() <= self.params.max_rms_ratio) {
+        let (mut sum, mut score) = (0.0, 0usize);
+        for (j, &i) in assignment[..self.holes].iter().enumerate() {
+            if i != NONE {
+                let d = (self.cand.pos[i as usize] - projection.pos[j]).norm();
+                if !(d < self.max_dist(projection.size[j])) {
+                    return;
+                }
+                sum += d * d;
+                score += 1;
+            }
+        }
+        let key = assignment_hash(&assignment[..self.holes]);
+        if self.accepted.iter().any(|a| a.key == key) {
             return;
         }
-        self.seen.insert(key);
         let start = self.accepted_assignments.len();
         self.accepted_assignments.extend_from_slice(&assignment[..self.holes]);
-        self.accepted.push(Accepted { score, rms_px: (sum_px / n as f64).sqrt(), transform, projection, start });
+        let rms_px = (sum / score as f64).sqrt();
+        let log_nfa = self.log_nfa(&assignment, &projection, &errors);
+        self.accepted.push(Accepted { score, rms_px, log_nfa, transform, projection, start, key });
+    }
+
+    /// ln of the expected number of chance hypotheses as good as this one, per
+    /// hypothesis tried (a-contrario, as AC-RANSAC): the candidates around the
+    /// outlet that it does not use are taken as uniform clutter of their local
+    /// density; a hole is matched by chance within radius r with probability
+    /// alpha = density x pi r^2, r its leave-one-out error. Three matches fix the
+    /// transform and are free (the three least significant); k of the other n - 3
+    /// holes all within the k-th smallest radius: C(n - 3, k) alpha_k^k, the best k.
+    fn log_nfa(&mut self, assignment: &Assignment, projection: &Projection, errors: &[f64]) -> f64 {
+        let n = self.holes;
+        let centre = projection.pos[..n].iter().fold(Vector2::zeros(), |acc, p| acc + p.coords) / n as f64;
+        let centre = Point2::from(centre);
+        let (mut spread, mut largest) = (0.0f64, 0.0f64);
+        for (p, &size) in projection.pos[..n].iter().zip(&projection.size[..n]) {
+            spread = spread.max((p - centre).norm());
+            largest = largest.max(size);
+        }
+        let radius = 2.0 * spread + largest;
+        let area = std::f64::consts::PI * radius * radius;
+        self.stamp = self.stamp.wrapping_add(1).max(1);
+        for &i in &assignment[..n] {
+            if i != NONE {
+                self.used[i as usize] = self.stamp;
+            }
+        }
+        let mut alphas = [1.0f64; MAX_TEMPLATE_HOLES];
+        let mut m = 0;
+        for j in 0..n {
+            if assignment[j] == NONE {
+                continue;
+            }
+            let (class, size) = (self.template_class[j], projection.size[j]);
+            let mut count = 0usize;
+            for i in 0..self.cand.len() {
+                if self.used[i] != self.stamp
+                    && self.cand.class[i] == class
+                    && self.size_agrees(self.cand.size[i], size)
+                    && (self.cand.pos[i] - centre).norm_squared() <= radius * radius
+                {
+                    count += 1;
+                }
+            }
+            let r = errors[j].max(self.params.position_precision_px);
+            alphas[m] = ((count + 1) as f64 / area * std::f64::consts::PI * r * r).min(1.0);
+            m += 1;
+        }
+        if m < 4 {
+            return f64::INFINITY;
+        }
+        alphas[..m].sort_unstable_by(f64::total_cmp);
+        let evidence = m - 3;
+        let mut best = f64::INFINITY;
+        for k in 1..=evidence {
+            best = best.min(ln_binomial(n - 3, k) + k as f64 * alphas[k - 1].ln());
+        }
+        // k was chosen among `evidence` values.
+        best + (evidence as f64).ln()
     }
 
     fn assignment_of(&self, k: usize) -> &[u32] {
@@ -729,9 +863,13 @@ impl<'a> Search<'a> {
         &self.accepted_assignments[s..s + self.holes]
     }
 
-    /// The best hypothesis, if no other interpretation rivals it.
+    /// The best significant hypothesis, if no other significant interpretation
+    /// rivals it.
     fn decide(&self) -> Option<usize> {
-        let best = (0..self.accepted.len()).min_by(|&x, &y| {
+        let log_tests = (self.tests.max(1) as f64).ln();
+        let limit = self.params.max_nfa.ln();
+        let significant = |k: &usize| self.accepted[*k].log_nfa + log_tests <= limit;
+        let best = (0..self.accepted.len()).filter(significant).min_by(|&x, &y| {
             let (a, b) = (&self.accepted[x], &self.accepted[y]);
             b.score.cmp(&a.score).then(a.rms_px.total_cmp(&b.rms_px))
         })?;
@@ -756,6 +894,20 @@ impl<'a> Search<'a> {
         }
         Some(best)
     }
+}
+
+/// ln of the binomial coefficient C(n, k).
+fn ln_binomial(n: usize, k: usize) -> f64 {
+    (0..k.min(n)).map(|i| ((n - i) as f64 / (i + 1) as f64).ln()).sum()
+}
+
+/// `t` applied to a point (homogeneous division).
+fn apply(t: &Matrix3<f64>, p: Point2<f64>) -> Point2<f64> {
+    let w = t[(2, 0)] * p.x + t[(2, 1)] * p.y + t[(2, 2)];
+    Point2::new(
+        (t[(0, 0)] * p.x + t[(0, 1)] * p.y + t[(0, 2)]) / w,
+        (t[(1, 0)] * p.x + t[(1, 1)] * p.y + t[(1, 2)]) / w,
+    )
 }
 
 /// Similarity that moves `points` to their centroid and scales their mean
@@ -830,6 +982,86 @@ fn denormalise(normalised: &Matrix3<f64>, cs: Vector2<f64>, ss: f64, cd: Vector2
     t_dst_inv * normalised * t_src
 }
 
+/// The voting state of the online stage.
+struct Online {
+    /// Votes per model basis; zero outside `vote`.
+    votes: Vec<u16>,
+    /// Model bases with a vote, to reset.
+    touched: Vec<u32>,
+    min_votes: u16,
+}
+
+impl Online {
+    /// Hashes the candidates `hashed` in the online basis `basis` (origin, a, b),
+    /// counts the votes of the model bases and evaluates those with enough.
+    fn vote(&mut self, search: &mut Search, basis: [usize; 3], hashed: &[u32]) {
+        let table = search.table;
+        let [o, a, b] = basis;
+        let cand = &search.cand;
+        let signature = (cand.class[o] * 4 + cand.class[a] * 2 + cand.class[b]) as usize;
+        if table.signature_bases[signature] == 0 {
+            return;
+        }
+        // Every model basis of this signature is a hypothesis tested, voted for or
+        // not: the votes select by the very evidence that is judged.
+        search.tests += table.signature_bases[signature] as usize;
+        let origin = cand.pos[o];
+        let (u, v) = (cand.pos[a] - origin, cand.pos[b] - origin);
+        // Affine coordinates (p, q) of d = p u + q v, straight in bins:
+        // bin = (coordinate + range) * bins / (2 range).
+        let per_unit = table.bins as f64 / (2.0 * table.range);
+        let (scale, offset) = (per_unit / cross(u, v), table.range * per_unit);
+        let limit = table.bins as f64;
+        for &other in hashed {
+            let other = other as usize;
+            if other == a || other == b {
+                continue;
+            }
+            let d = cand.pos[other] - origin;
+            let x = cross(d, v) * scale + offset;
+            let y = cross(u, d) * scale + offset;
+            // NaN fails these comparisons too.
+            if !(x >= 0.0 && x < limit && y >= 0.0 && y < limit) {
+                continue;
+            }
+            let bucket = table.bucket(signature, cand.class[other] as usize, x as usize, y as usize);
+            for &model in table.bucket_entries(bucket) {
+                let count = &mut self.votes[model as usize];
+                if *count == 0 {
+                    self.touched.push(model);
+                }
+                *count = count.saturating_add(1);
+            }
+        }
+        for &model in &self.touched {
+            let model = model as usize;
+            if self.votes[model] >= self.min_votes {
+                search.evaluate(model, basis);
+            }
+            self.votes[model] = 0;
+        }
+        self.touched.clear();
+    }
+}
+
+/// The triangle's corners reordered from its widest angle, or `None` when it is
+/// nearly flat (sine of that angle below `sin_min`).
+fn widest_corner(pos: &[Point2<f64>], corners: [usize; 3], sin_min: f64) -> Option<[usize; 3]> {
+    let [c0, c1, c2] = corners;
+    let (p0, p1, p2) = (pos[c0], pos[c1], pos[c2]);
+    // The widest angle is opposite the longest side.
+    let (l0, l1, l2) = ((p1 - p2).norm_squared(), (p0 - p2).norm_squared(), (p0 - p1).norm_squared());
+    let [o, a, b] = if l0 >= l1 && l0 >= l2 {
+        [c0, c1, c2]
+    } else if l1 >= l2 {
+        [c1, c0, c2]
+    } else {
+        [c2, c0, c1]
+    };
+    let (u, v) = (pos[a] - pos[o], pos[b] - pos[o]);
+    if cross(u, v).abs() >= sin_min * u.norm() * v.norm() { Some([o, a, b]) } else { None }
+}
+
 /// Finds the one outlet of `table`'s template among classified candidates, or
 /// `None` (no outlet, or more than one way to see one).
 ///
@@ -877,17 +1109,19 @@ pub fn find_outlet(
         stamp: 0,
         tried: HashSet::new(),
         seen: HashSet::new(),
+        refined: Vec::new(),
         accepted: Vec::new(),
         accepted_assignments: Vec::new(),
         hypotheses: 0,
+        tests: 0,
     };
     if search.min_score > holes {
         return None;
     }
 
     // Each candidate's neighbourhood: candidates within the outlet's extent at the
-    // scale its size implies (times the size tolerance), of compatible size;
-    // nearest first for the first `k`.
+    // largest scale its size allows, of compatible size; nearest first for the
+    // first `k`, which make the online bases.
     let k_max = params.neighbours.max(2);
     let tol = params.size_tolerance;
     let mut hood_start = vec![0u32; m + 1];
@@ -904,71 +1138,60 @@ pub fn find_outlet(
             }
         }
         let k = k_max.min(scratch.len());
+        let by_distance = |a: &(f64, u32), b: &(f64, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
         if k > 0 && k < scratch.len() {
-            scratch.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            scratch.select_nth_unstable_by(k - 1, by_distance);
         }
-        scratch[..k].sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        scratch[..k].sort_unstable_by(by_distance);
         hood.extend(scratch.iter().map(|&(_, i)| i));
         hood_start[c + 1] = hood.len() as u32;
     }
 
-    let min_votes = params.min_votes(holes).min(u16::MAX as usize) as u16;
+    let mut online = Online {
+        votes: vec![0u16; table.bases.len()],
+        touched: Vec::with_capacity(table.bases.len()),
+        min_votes: params.min_votes(holes).min(u16::MAX as usize) as u16,
+    };
     let sin_online = finite_or(params.min_online_angle, 0.25).clamp(0.0, std::f64::consts::FRAC_PI_2).sin().max(1e-6);
-    let mut votes = vec![0u16; table.bases.len()];
-    let mut touched: Vec<u32> = Vec::with_capacity(table.bases.len());
-    let mut triples: HashSet<u64> = HashSet::with_capacity(m * 16);
+    let mut bases_seen: HashSet<u64> = HashSet::with_capacity(m * 16);
     for c in 0..m {
         let list = &hood[hood_start[c] as usize..hood_start[c + 1] as usize];
         let k = k_max.min(list.len());
         for a in 0..k {
             for b in a + 1..k {
-                let (i1, i2) = (list[a] as usize, list[b] as usize);
-                let mut key = [c as u64, i1 as u64, i2 as u64];
-                key.sort_unstable();
-                if !triples.insert((key[0] << 42) | (key[1] << 21) | key[2]) {
+                // A triangle is one basis, from its widest corner: the model holds
+                // every ordering, and the widest corner keeps its model angle wide.
+                let Some([o, x, y]) =
+                    widest_corner(&search.cand.pos, [c, list[a] as usize, list[b] as usize], sin_online)
+                else {
+                    continue;
+                };
+                let key = ((o as u64) << 42) | ((x.min(y) as u64) << 21) | x.max(y) as u64;
+                if !bases_seen.insert(key) {
                     continue;
                 }
-                let cand = &search.cand;
-                let origin = cand.pos[c];
-                let (u, v) = (cand.pos[i1] - origin, cand.pos[i2] - origin);
-                let det = cross(u, v);
-                if !(det.abs() >= sin_online * u.norm() * v.norm()) {
-                    continue;
-                }
-                let signature = (cand.class[c] * 4 + cand.class[i1] * 2 + cand.class[i2]) as usize;
-                if table.signature_bases[signature] == 0 {
-                    continue;
-                }
-                for &other in list {
-                    let other = other as usize;
-                    if other == i1 || other == i2 {
-                        continue;
-                    }
-                    let d = cand.pos[other] - origin;
-                    let (p, q) = (cross(d, v) / det, cross(u, d) / det);
-                    let (Some(bx), Some(by)) = (table.bin(p), table.bin(q)) else { continue };
-                    let bucket = table.bucket(signature, cand.class[other] as usize, bx, by);
-                    for &basis in table.bucket_entries(bucket) {
-                        let count = &mut votes[basis as usize];
-                        if *count == 0 {
-                            touched.push(basis);
-                        }
-                        *count = count.saturating_add(1);
-                    }
-                }
-                for &basis in &touched {
-                    let basis = basis as usize;
-                    if votes[basis] >= min_votes {
-                        search.evaluate(basis, [c, i1, i2]);
-                    }
-                    votes[basis] = 0;
-                }
-                touched.clear();
+                let hashed = &hood[hood_start[o] as usize..hood_start[o + 1] as usize];
+                online.vote(&mut search, [o, x, y], hashed);
             }
         }
     }
 
     let found = search.decide();
+    if std::env::var_os("HASH_DEBUG").is_some() {
+        eprintln!(
+            "m {} hyp {} refined {} accepted {} found {:?} tests {}",
+            m,
+            search.hypotheses,
+            search.tried.len(),
+            search.accepted.len(),
+            found,
+            search.tests
+        );
+        for (k, a) in search.accepted.iter().enumerate() {
+            let nfa = a.log_nfa + (search.tests.max(1) as f64).ln();
+            eprintln!("  #{k} score {} rms {:.2} lognfa {:.1} {:?}", a.score, a.rms_px, nfa, search.assignment_of(k));
+        }
+    }
     tracing::debug!(
         candidates = m,
         hypotheses = search.hypotheses,

@@ -1,23 +1,36 @@
 //! The one-way descriptor (stage 2) tells power holes, ground holes and background
-//! apart, on rendered images and on the real Willow photograph.
+//! apart: trained on one rendered white 2x1 it recognises the holes of other
+//! outlets, it ignores linear intensity changes, and trained on the real Willow
+//! photograph it recognises that photograph's own holes.
+//!
+//! The accuracy test prints per-class accuracy and timing; `cargo test --release
+//! -p outlet-detector --test descriptor -- --ignored --nocapture` also prints the
+//! parameter sweep behind the defaults of `DescriptorParams`.
 
 use image::GrayImage;
-use nalgebra::Point2;
-use outlet_detector::descriptor::{self, DescriptorParams, OneWayDescriptor, TrainingFeature};
+use nalgebra::{Point2, Vector2};
+use outlet_detector::descriptor::{self, DescriptorParams, Normalisation, OneWayDescriptor, TrainingFeature};
 use outlet_detector::{Candidate, Class, grey_of};
 use outlet_protocol::CameraModel;
 use std::time::Instant;
 
 /// Scenarios whose holes the classifier, trained on one white 2x1, must recognise.
 const TEST_SCENARIOS: [&str; 4] = ["orange2x1", "whitehall2x1", "white2x2", "fw_2x2orange"];
-const TEST_IMAGES_PER_SCENARIO: u64 = 10;
+const TEST_IMAGES_PER_SCENARIO: u64 = 20;
 const NEGATIVE_TEST_IMAGES: u64 = 40;
+/// Seeds: training images, held-out test images, and a second held-out set on
+/// which the sweep checks that the defaults were not fitted to the first.
+const TRAIN_SEED: u64 = 1;
+const TEST_SEED: u64 = 2;
+const CHECK_SEED: u64 = 3;
 
 /// A rendered image with its labelled holes.
 struct View {
     grey: GrayImage,
     /// Hole centre, class and the slot pitch of the hole's receptacle (pixels).
     holes: Vec<(Point2<f64>, Class, f64)>,
+    /// Every opening of every receptacle in view, sought or not (pixels).
+    openings: Vec<Point2<f64>>,
 }
 
 fn render(scenario: &str, seed: u64, index: u64) -> View {
@@ -32,14 +45,29 @@ fn render(scenario: &str, seed: u64, index: u64) -> View {
         .enumerate()
         .map(|(k, h)| {
             let r = k / 3 * 3;
-            let pitch = (pixels[r] - pixels[r + 1]).norm();
-            (pixels[k], Class::from(h.kind), pitch)
+            (pixels[k], Class::from(h.kind), (pixels[r] - pixels[r + 1]).norm())
         })
         .collect();
-    View { grey: grey_of(&frame.frame.image), holes }
+    // Receptacles that are not the sought outlet (a neighbour, a single one) have
+    // holes too: no background test point is taken near them.
+    let mut openings = Vec::new();
+    for plate in &scene.plates {
+        if let outlet_sim::scene::Insert::Receptacles(faces) = &plate.insert {
+            for face in faces {
+                for opening in outlet_sim::shapes::Opening::ALL {
+                    let [x, y] = opening.centre();
+                    let mm = [plate.centre[0] + face.centre[0] + x, plate.centre[1] + face.centre[1] + y];
+                    let p = scene.pose * nalgebra::Point3::new(mm[0] / 1000.0, mm[1] / 1000.0, 0.0);
+                    openings.extend(scene.camera.project(&p));
+                }
+            }
+        }
+    }
+    View { grey: grey_of(&frame.frame.image), holes, openings }
 }
 
-/// The first image of a scenario seen nearly frontally and upright: a training view.
+/// The first image of a scenario seen nearly frontally (off axis < 15 degrees) and
+/// upright: a training view.
 fn frontal_index(scenario: &str, seed: u64) -> u64 {
     (0..200)
         .find(|&index| {
@@ -141,17 +169,17 @@ fn simple_candidates(grey: &GrayImage) -> Vec<Candidate> {
     kept
 }
 
-/// The training set of the accuracy test: the holes of one frontal white 2x1 and
-/// background features from one negative image, pasted side by side into one grey
-/// image (the descriptor trains on one image).
-fn rendered_training_image(params: &DescriptorParams) -> (GrayImage, Vec<TrainingFeature>) {
-    let train = render("fw_2x1white", 1, frontal_index("fw_2x1white", 1));
-    // The negative image (of the first 20) with the most candidates.
+/// The training set of the accuracy test: the six holes of one frontal white 2x1
+/// (scale from their slot pitch) and 20 background features from the negative
+/// image (of the first 20) with the most candidates, the two images pasted side by
+/// side into one grey image (the descriptor trains on one image).
+fn rendered_training_set(params: &DescriptorParams) -> (GrayImage, Vec<TrainingFeature>) {
+    let train = render("fw_2x1white", TRAIN_SEED, frontal_index("fw_2x1white", TRAIN_SEED));
     let negative = (0..20)
-        .map(|i| render("negative", 1, i))
+        .map(|i| render("negative", TRAIN_SEED, i))
         .max_by_key(|v| simple_candidates(&v.grey).len())
         .expect("negative images");
-    let background = descriptor::background_features(&negative.grey, &simple_candidates(&negative.grey), &[], 0.0, 40);
+    let background = descriptor::background_features(&negative.grey, &simple_candidates(&negative.grey), &[], 0.0, 20);
     let (w, h) = train.grey.dimensions();
     let mut both = GrayImage::new(w + negative.grey.width(), h.max(negative.grey.height()));
     image::imageops::replace(&mut both, &train.grey, 0, 0);
@@ -161,9 +189,9 @@ fn rendered_training_image(params: &DescriptorParams) -> (GrayImage, Vec<Trainin
         .iter()
         .map(|&(centre, class, pitch)| TrainingFeature { centre, class, scale: params.scale_for_slot_pitch(pitch) })
         .collect();
-    // Background features follow the default convention: convert.
+    // Background features come in the default convention; follow the params'.
     let convert = DescriptorParams::default().slot_pitch_patch_px / params.slot_pitch_patch_px;
-    let shift = nalgebra::Vector2::new(w as f64, 0.0);
+    let shift = Vector2::new(w as f64, 0.0);
     features.extend(background.iter().map(|f| TrainingFeature {
         centre: f.centre + shift,
         scale: f.scale * convert,
@@ -195,10 +223,11 @@ impl Confusion {
     }
 
     fn print(&self, title: &str) {
-        println!("{title}: truth \\ predicted   power  ground  backgr   correct");
+        println!("{title}");
+        println!("  truth \\ predicted   power  ground  backgr   correct");
         for (name, class) in [("power", Class::Power), ("ground", Class::Ground), ("background", Class::Background)] {
             let r = self.0[index(class)];
-            println!("  {name:>10} {:>24} {:>7} {:>7}   {:5.1}%", r[0], r[1], r[2], 100.0 * self.rate(class));
+            println!("  {name:>10} {:>13} {:>7} {:>7}   {:5.1}%", r[0], r[1], r[2], 100.0 * self.rate(class));
         }
     }
 }
@@ -220,16 +249,16 @@ struct TestImage {
 
 /// Candidates of held-out images, labelled: a hole when within 0.15 slot pitch of a
 /// hole centre (at least 2 px), background when farther than 0.8 pitch from every
-/// hole; candidates in between (parts of holes, face outlines) are left out. Also
-/// counts the holes that no candidate found.
-fn test_images(pitch_ladder: &[f64]) -> (Vec<TestImage>, usize) {
-    let mut images = Vec::new();
-    let mut missed = 0;
+/// hole of the outlet and 6 px from any other receptacle's opening; candidates in
+/// between (parts of holes, face outlines next to them) are left out. Also counts
+/// the holes that no candidate found.
+fn test_images(seed: u64, pitch_ladder: &[f64]) -> (Vec<TestImage>, usize) {
     let mut views: Vec<View> = Vec::new();
     for scenario in TEST_SCENARIOS {
-        views.extend((0..TEST_IMAGES_PER_SCENARIO).map(|i| render(scenario, 2, i)));
+        views.extend((0..TEST_IMAGES_PER_SCENARIO).map(|i| render(scenario, seed, i)));
     }
-    views.extend((0..NEGATIVE_TEST_IMAGES).map(|i| render("negative", 2, i)));
+    views.extend((0..NEGATIVE_TEST_IMAGES).map(|i| render("negative", seed, i)));
+    let (mut images, mut missed) = (Vec::new(), 0);
     for (k, view) in views.into_iter().enumerate() {
         let candidates = simple_candidates(&view.grey);
         let mut points = Vec::new();
@@ -244,7 +273,8 @@ fn test_images(pitch_ladder: &[f64]) -> (Vec<TestImage>, usize) {
             }
         }
         for c in &candidates {
-            let clear = view.holes.iter().all(|&(centre, _, pitch)| (c.centre - centre).norm() > 0.8 * pitch);
+            let clear = view.holes.iter().all(|&(centre, _, pitch)| (c.centre - centre).norm() > 0.8 * pitch)
+                && view.openings.iter().all(|o| (c.centre - o).norm() > 6.0);
             if clear {
                 points.push(TestPoint { candidate: *c, class: Class::Background });
             }
@@ -265,32 +295,37 @@ fn pitch_ladder(d: &OneWayDescriptor) -> Vec<f64> {
 /// At which scale a test point is classified.
 #[derive(Clone, Copy, Debug)]
 enum Mode {
-    /// The scale of the image's outlet (one scale per image, as when the detector
-    /// runs once per test scale): the size of a hole is still a cue.
+    /// The scale of the image's outlet, one per image (as when the detector runs
+    /// once per test scale, or knows the distance to the wall): a hole's size is
+    /// still a cue.
     Global,
-    /// The one or two scales the candidate's size implies.
+    /// The one or two scales the candidate's size implies (`classify_candidate`).
     Candidate,
-    /// All the paper's test scales, nearest match kept.
+    /// All the paper's test scales, the nearest match kept (`classify_multiscale`).
     Ladder,
 }
 
+/// Confusion matrix and mean classification time per point (seconds).
 fn evaluate(d: &OneWayDescriptor, images: &[TestImage], mode: Mode) -> (Confusion, f64) {
     let mut confusion = Confusion::default();
     let ladder = d.scale_ladder();
     let (mut seconds, mut count) = (0.0, 0);
     for image in images {
-        for p in &image.points {
-            let start = Instant::now();
-            let result = match mode {
-                Mode::Global => {
-                    d.classify(&image.grey, p.candidate.centre, d.params().scale_for_slot_pitch(image.pitch))
-                }
+        let scale = d.params().scale_for_slot_pitch(image.pitch);
+        let start = Instant::now();
+        let results: Vec<_> = image
+            .points
+            .iter()
+            .map(|p| match mode {
+                Mode::Global => d.classify(&image.grey, p.candidate.centre, scale),
                 Mode::Candidate => d.classify_candidate(&image.grey, &p.candidate),
                 Mode::Ladder => d.classify_multiscale(&image.grey, p.candidate.centre, &ladder),
-            };
-            seconds += start.elapsed().as_secs_f64();
-            count += 1;
-            confusion.add(p.class, result.class);
+            })
+            .collect();
+        seconds += start.elapsed().as_secs_f64();
+        count += results.len();
+        for (p, r) in image.points.iter().zip(&results) {
+            confusion.add(p.class, r.class);
         }
     }
     (confusion, seconds / count.max(1) as f64)
@@ -299,152 +334,261 @@ fn evaluate(d: &OneWayDescriptor, images: &[TestImage], mode: Mode) -> (Confusio
 #[test]
 fn classifier_trained_on_one_white_2x1_recognises_held_out_holes_and_rejects_background() {
     let params = DescriptorParams::default();
-    let (grey, features) = rendered_training_image(&params);
+    let (grey, features) = rendered_training_set(&params);
     let start = Instant::now();
     let d = descriptor::train(&grey, &features, &params).expect("training");
-    let train_ms = start.elapsed().as_secs_f64() * 1e3;
     println!(
-        "trained in {train_ms:.1} ms: {:?} samples (power, ground, background), {} PCA dims",
+        "trained on {} features in {:.1} ms: {:?} samples (power, ground, background), {} PCA dims",
+        features.len(),
+        start.elapsed().as_secs_f64() * 1e3,
         d.sample_counts(),
         d.dims()
     );
-    let (images, missed) = test_images(&pitch_ladder(&d));
-    let holes: usize = images.iter().map(|i| i.points.iter().filter(|p| p.class != Class::Background).count()).sum();
-    println!("test: {} images, {holes} holes found by the stand-in candidates, {missed} missed", images.len());
+    let (images, missed) = test_images(TEST_SEED, &pitch_ladder(&d));
+    let count =
+        |class: Class| -> usize { images.iter().map(|i| i.points.iter().filter(|p| p.class == class).count()).sum() };
+    println!(
+        "test: {} images, {} power and {} ground holes found by the stand-in candidates ({missed} missed), {} background",
+        images.len(),
+        count(Class::Power),
+        count(Class::Ground),
+        count(Class::Background)
+    );
     for mode in [Mode::Global, Mode::Candidate, Mode::Ladder] {
         let (confusion, per_point) = evaluate(&d, &images, mode);
-        confusion.print(&format!("{mode:?} ({:.1} us per point)", per_point * 1e6));
-        if let Mode::Global = mode {
-            assert!(confusion.rate(Class::Power) >= 0.85, "power accuracy {:.3}", confusion.rate(Class::Power));
-            assert!(confusion.rate(Class::Ground) >= 0.80, "ground accuracy {:.3}", confusion.rate(Class::Ground));
-            assert!(
-                confusion.rate(Class::Background) >= 0.70,
-                "background rejection {:.3}",
-                confusion.rate(Class::Background)
-            );
-        }
-    }
-}
-
-#[test]
-#[ignore]
-fn explore_candidates() {
-    for (s, seed, i) in
-        [("negative", 1, 0), ("negative", 2, 1), ("negative", 2, 2), ("orange2x1", 2, 0), ("white2x2", 2, 1)]
-    {
-        let v = render(s, seed, i);
-        let c = simple_candidates(&v.grey);
-        let real = outlet_detector::candidates::find_candidates(&v.grey, &Default::default());
-        println!("{s} {seed} {i}: {} candidates, real {}", c.len(), real.len());
-        for c in c.iter().take(15) {
-            println!("   {:?}", c);
-        }
-        v.grey.save(format!("/tmp/g_{s}_{seed}_{i}.png")).unwrap();
-    }
-}
-
-#[test]
-#[ignore]
-fn sweep() {
-    let base = DescriptorParams::default();
-    let (grey, features) = rendered_training_image(&base);
-    let (images, _) = test_images(&pitch_ladder(&descriptor::train(&grey, &features, &base).unwrap()));
-    let mut variants: Vec<(String, DescriptorParams)> = Vec::new();
-    for crop in [12, 16] {
-        for pitch in [12.7, 9.0, 8.0, 6.35] {
-            for norm in [descriptor::Normalisation::ZeroMeanUnitNorm, descriptor::Normalisation::UnitSum] {
-                let p = DescriptorParams {
-                    crop_size: crop,
-                    slot_pitch_patch_px: pitch * crop as f64 / 12.0,
-                    normalisation: norm,
-                    ..base.clone()
-                };
-                variants.push((
-                    format!(
-                        "{crop} {:.1}mm {}",
-                        12.7 / pitch,
-                        if norm == descriptor::Normalisation::UnitSum { "L1" } else { "L2" }
-                    ),
-                    p,
-                ));
+        confusion.print(&format!("{mode:?} scale: {:.1} us per point", per_point * 1e6));
+        if matches!(mode, Mode::Global | Mode::Candidate) {
+            // Floors well under the measured rates (README of the test: the
+            // geometric stage tolerates errors).
+            let floors = [(Class::Power, 0.85), (Class::Ground, 0.80), (Class::Background, 0.70)];
+            for (class, floor) in floors {
+                let rate = confusion.rate(class);
+                assert!(rate >= floor, "{mode:?}: {class:?} rate {rate:.3} below {floor}");
             }
         }
     }
-    sweep_variants(&images, &variants, rendered_training_image);
 }
 
-fn sweep_variants(
-    images: &[TestImage],
-    variants: &[(String, DescriptorParams)],
-    training: impl Fn(&DescriptorParams) -> (GrayImage, Vec<TrainingFeature>),
-) {
-    println!(
-        "{:>18} {:>6} {:>7} | {:^20} | {:^20} | {:^20}",
-        "variant", "N", "ms", "global P G B", "candidate P G B", "ladder P G B"
-    );
-    for (name, params) in variants {
-        let (grey, features) = training(params);
-        let start = Instant::now();
-        let d = descriptor::train(&grey, &features, params).unwrap();
-        let ms = start.elapsed().as_secs_f64() * 1e3;
-        let mut line = format!("{name:>18} {:>6} {ms:>7.1} |", d.sample_counts().iter().sum::<usize>());
-        for mode in [Mode::Global, Mode::Candidate, Mode::Ladder] {
-            let (c, t) = evaluate(&d, images, mode);
-            line += &format!(
-                " {:4.0} {:4.0} {:4.0} {:4.1}us |",
-                100.0 * c.rate(Class::Power),
-                100.0 * c.rate(Class::Ground),
-                100.0 * c.rate(Class::Background),
-                t * 1e6
-            );
-        }
-        println!("{line}");
-    }
+/// The grey image with every pixel mapped by `f` (rounded).
+fn remap(grey: &GrayImage, f: impl Fn(f32) -> f32) -> GrayImage {
+    GrayImage::from_fn(grey.width(), grey.height(), |x, y| {
+        image::Luma([f(grey.get_pixel(x, y)[0] as f32).round().clamp(0.0, 255.0) as u8])
+    })
 }
 
 #[test]
-#[ignore]
-fn explore_confusions() {
+fn classification_ignores_intensity_scale_and_offset() {
     let params = DescriptorParams::default();
-    let (grey, features) = rendered_training_image(&params);
-    let d = descriptor::train(&grey, &features, &params).unwrap();
-    let (images, _) = test_images(&pitch_ladder(&d));
-    let poses = params.poses_per_feature * if params.half_turn { 2 } else { 1 };
-    let [np, ng, _] = d.sample_counts();
-    let mut ordered: Vec<&TrainingFeature> = Vec::new();
-    for c in [Class::Power, Class::Ground, Class::Background] {
-        ordered.extend(features.iter().filter(|f| f.class == c));
-    }
-    let mut n = 0;
-    let to_img = |v: &[f32]| {
-        let (lo, hi) = v.iter().fold((f32::MAX, f32::MIN), |a, &x| (a.0.min(x), a.1.max(x)));
-        GrayImage::from_fn(12, 12, |x, y| {
-            image::Luma([((v[(y * 12 + x) as usize] - lo) / (hi - lo + 1e-6) * 255.0) as u8])
-        })
-    };
-    for image in &images {
-        let scale = params.scale_for_slot_pitch(image.pitch);
-        for p in image.points.iter().filter(|p| p.class == Class::Ground) {
-            let (i, dist, sample) = d.debug_nearest(&image.grey, p.candidate.centre, scale);
-            let cls = if i < np {
-                "P"
-            } else if i < np + ng {
-                "G"
-            } else {
-                "B"
-            };
-            let f = ordered[i / poses];
-            let (_, _, train_sample) = d.debug_nearest(&grey, f.centre, f.scale);
-            println!(
-                "ground #{n} at {:?} size {:?} -> {cls} d={dist:.3} feature {:?} pose {}",
-                p.candidate.centre,
-                p.candidate.size,
-                f.centre,
-                i % poses
-            );
-            to_img(&sample).save(format!("/tmp/conf_{n}_test.png")).unwrap();
-            to_img(&train_sample).save(format!("/tmp/conf_{n}_{cls}.png")).unwrap();
-            n += 1;
+    let (grey, features) = rendered_training_set(&params);
+    let d = descriptor::train(&grey, &features, &params).expect("training");
+    // The training holes themselves, darker and then also brighter than ever.
+    for (name, f) in [("x0.5", &(|v: f32| 0.5 * v) as &dyn Fn(f32) -> f32), ("x0.5 + 100", &|v: f32| 0.5 * v + 100.0)] {
+        let changed = remap(&grey, f);
+        for feature in features.iter().filter(|f| f.class != Class::Background) {
+            let before = d.classify(&grey, feature.centre, feature.scale);
+            let after = d.classify(&changed, feature.centre, feature.scale);
+            assert_eq!(before.class, feature.class, "training hole at {:?}", feature.centre);
+            assert_eq!(after.class, before.class, "{name}: training hole at {:?}", feature.centre);
+            assert!((after.distance - before.distance).abs() < 0.05, "{name}: {before:?} vs {after:?}");
         }
+    }
+    // Every candidate of held-out images: rounding to 8 bits after the change is
+    // the only difference, so a decision may flip only at a class boundary.
+    let (images, _) = test_images(TEST_SEED, &pitch_ladder(&d));
+    for (name, f) in [("x0.5", &(|v: f32| 0.5 * v) as &dyn Fn(f32) -> f32), ("x0.5 + 100", &|v: f32| 0.5 * v + 100.0)] {
+        let (mut same, mut total) = (0, 0);
+        for image in images.iter().step_by(5) {
+            let changed = remap(&image.grey, f);
+            for p in &image.points {
+                let before = d.classify_candidate(&image.grey, &p.candidate);
+                let after = d.classify_candidate(&changed, &p.candidate);
+                same += (before.class == after.class) as usize;
+                total += 1;
+            }
+        }
+        println!("{name}: {same} of {total} held-out candidates keep their class");
+        assert!(same as f64 >= 0.95 * total as f64, "{name}: only {same} of {total} unchanged");
+    }
+}
+
+/// The 12 labelled holes of `data/willow-2x2/V000_crop.png`: `V000.labels.json`
+/// (neutral, hot, ground per receptacle, in the built-in 2x2 template's order)
+/// shifted by the crop's origin (560, 330).
+const WILLOW_HOLES: [(Class, [f64; 2]); 12] = [
+    (Class::Power, [930.67, 582.12]),
+    (Class::Power, [897.27, 583.04]),
+    (Class::Ground, [914.08, 567.14]),
+    (Class::Power, [932.31, 528.4]),
+    (Class::Power, [896.37, 529.03]),
+    (Class::Ground, [914.31, 510.82]),
+    (Class::Power, [809.32, 580.48]),
+    (Class::Power, [775.71, 581.02]),
+    (Class::Ground, [791.48, 565.17]),
+    (Class::Power, [805.71, 524.81]),
+    (Class::Power, [770.67, 524.81]),
+    (Class::Ground, [787.44, 507.96]),
+];
+const WILLOW_CROP_ORIGIN: [f64; 2] = [560.0, 330.0];
+
+#[test]
+fn descriptor_trained_on_the_willow_photograph_recognises_its_own_holes() {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/willow-2x2/V000_crop.png");
+    let grey = grey_of(&image::open(path).expect("Willow fixture").to_rgb8());
+    let params = DescriptorParams::default();
+    let holes: Vec<(Class, Point2<f64>)> = WILLOW_HOLES
+        .iter()
+        .map(|&(class, [u, v])| (class, Point2::new(u - WILLOW_CROP_ORIGIN[0], v - WILLOW_CROP_ORIGIN[1])))
+        .collect();
+    // Scale from the label spacing: each receptacle's slot pitch.
+    let mut features: Vec<TrainingFeature> = holes
+        .chunks_exact(3)
+        .flat_map(|r| {
+            let scale = params.scale_for_slot_pitch((r[0].1 - r[1].1).norm());
+            r.iter().map(move |&(class, centre)| TrainingFeature { centre, class, scale })
+        })
+        .collect();
+    // Background: the photograph's candidates clear of the outlet's receptacles.
+    let pitch = (holes[0].1 - holes[1].1).norm();
+    let centres: Vec<Point2<f64>> = holes.iter().map(|h| h.1).collect();
+    let candidates = simple_candidates(&grey);
+    let background = descriptor::background_features(&grey, &candidates, &centres, 1.5 * pitch, 20);
+    println!(
+        "Willow: slot pitch {pitch:.1} px, {} candidates, {} background features",
+        candidates.len(),
+        background.len()
+    );
+    assert!(!background.is_empty(), "the photograph has background candidates");
+    features.extend(background);
+    let start = Instant::now();
+    let d = descriptor::train(&grey, &features, &params).expect("training");
+    println!("trained in {:.1} ms: {:?} samples", start.elapsed().as_secs_f64() * 1e3, d.sample_counts());
+    for (k, f) in features.iter().take(12).enumerate() {
+        let c = d.classify(&grey, f.centre, f.scale);
+        println!("  hole {k:2} {:?}: {:?} at distance {:.3} {:?}", f.class, c.class, c.distance, c.class_distances);
+        assert_eq!(c.class, f.class, "hole {k} at {:?}", f.centre);
+    }
+    // The photograph's own candidates, classified as the detector will: at the
+    // outlet's scale, and at the scales their sizes imply, before and after
+    // calibrating the candidate extents on the labelled holes.
+    let labelled: Vec<(Option<usize>, &Candidate)> = candidates
+        .iter()
+        .filter_map(|c| {
+            let (k, distance) = features[..12]
+                .iter()
+                .map(|f| (f.centre - c.centre).norm())
+                .enumerate()
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .expect("holes");
+            match distance {
+                d if d < 0.15 * pitch => Some((Some(k), c)),
+                d if d > 0.8 * pitch => Some((None, c)),
+                _ => None,
+            }
+        })
+        .collect();
+    let truth = |k: Option<usize>| k.map_or(Class::Background, |k| features[k].class);
+    // Per labelled hole: whether some candidate on it was classified right.
+    let mut found = [[false; 12]; 2];
+    let mut at_outlet_scale = Confusion::default();
+    let mut before = Confusion::default();
+    for &(k, c) in &labelled {
+        let class = d.classify(&grey, c.centre, features[0].scale).class;
+        at_outlet_scale.add(truth(k), class);
+        before.add(truth(k), d.classify_candidate(&grey, c).class);
+        if let Some(k) = k {
+            found[0][k] |= class == truth(Some(k));
+        }
+    }
+    let matched: Vec<(TrainingFeature, Candidate)> =
+        labelled.iter().filter_map(|&(k, c)| k.map(|k| (features[k], *c))).collect();
+    let mut d = d;
+    let extent = d.calibrate_candidate_extent(&matched);
+    let mut after = Confusion::default();
+    for &(k, c) in &labelled {
+        let class = d.classify_candidate(&grey, c).class;
+        after.add(truth(k), class);
+        if let Some(k) = k {
+            found[1][k] |= class == truth(Some(k));
+        }
+    }
+    at_outlet_scale.print("Willow candidates, outlet scale");
+    before.print("Willow candidates, candidate scale (rendered extents)");
+    after.print(&format!("Willow candidates, candidate scale (calibrated extents {extent:.2?})"));
+    let holes_with_candidates: Vec<usize> = (0..12).filter(|&k| labelled.iter().any(|l| l.0 == Some(k))).collect();
+    println!("holes with a candidate: {holes_with_candidates:?}");
+    for (name, found) in [("outlet scale", found[0]), ("calibrated candidate scale", found[1])] {
+        for &k in &holes_with_candidates {
+            assert!(found[k], "{name}: no candidate on hole {k} ({:?}) classified right", features[k].class);
+        }
+    }
+    assert_eq!(at_outlet_scale.rate(Class::Background), 1.0, "background candidates at the outlet scale");
+}
+
+/// Classification cost against the number of stored samples (poses) and PCA
+/// dimensions, and the parameter sweep behind the defaults, on two held-out sets.
+#[test]
+#[ignore = "measurement: run with --release --ignored --nocapture"]
+fn descriptor_parameter_sweep() {
+    let base = DescriptorParams::default();
+    let (grey, features) = rendered_training_set(&base);
+    let ladder = pitch_ladder(&descriptor::train(&grey, &features, &base).expect("training"));
+    let mut variants: Vec<(String, DescriptorParams)> = vec![("default".into(), base.clone())];
+    for tau in [f32::INFINITY, 1.0, 0.8] {
+        let p = DescriptorParams { normalisation: Normalisation::UnitMean, max_distance: tau, ..base.clone() };
+        variants.push((format!("L1 (mean) tau {tau}"), p));
+    }
+    for dims in [8, 16, 32, 48, 100, 144] {
+        variants.push((format!("dims {dims}"), DescriptorParams { pca_dims: dims, ..base.clone() }));
+    }
+    for poses in [8, 16, 64, 128] {
+        variants.push((format!("poses {poses}"), DescriptorParams { poses_per_feature: poses, ..base.clone() }));
+    }
+    for copies in [1, 16] {
+        variants.push((format!("copies {copies}"), DescriptorParams { noisy_copies: copies, ..base.clone() }));
+    }
+    variants.push(("no half turn".into(), DescriptorParams { half_turn: false, ..base.clone() }));
+    let p = DescriptorParams { max_distance: f32::INFINITY, background_margin: 0.0, ..base.clone() };
+    variants.push(("plain nearest".into(), p));
+    for (tau, margin) in [(0.55, 0.1), (0.5, 0.1), (0.5, 0.15)] {
+        let p = DescriptorParams { max_distance: tau, background_margin: margin, ..base.clone() };
+        variants.push((format!("tau {tau} margin {margin}"), p));
+    }
+    for (pitch, tau, margin) in [(11.0, 0.5, 0.15), (10.0, 0.55, 0.1), (10.0, 0.5, 0.15), (8.0, 0.55, 0.1)] {
+        let p = DescriptorParams {
+            slot_pitch_patch_px: pitch,
+            max_distance: tau,
+            background_margin: margin,
+            ..base.clone()
+        };
+        variants.push((format!("{:.2} mm/px t{tau} m{margin}", 12.7 / pitch), p));
+    }
+    for seed in [TEST_SEED, CHECK_SEED] {
+        let (images, _) = test_images(seed, &ladder);
+        println!("held-out seed {seed}: rates in % (power, ground, background), time per point");
+        println!(
+            "{:>24} {:>6} {:>6} | {:^22} | {:^22} | {:^22}",
+            "variant", "N", "ms", "global", "candidate", "ladder"
+        );
+        for (name, params) in &variants {
+            let (grey, features) = rendered_training_set(params);
+            let start = Instant::now();
+            let d = descriptor::train(&grey, &features, params).expect("training");
+            let ms = start.elapsed().as_secs_f64() * 1e3;
+            let mut line = format!("{name:>24} {:>6} {ms:>6.1} |", d.sample_counts().iter().sum::<usize>());
+            for mode in [Mode::Global, Mode::Candidate, Mode::Ladder] {
+                let (c, t) = evaluate(&d, &images, mode);
+                let [p, g, b] = [Class::Power, Class::Ground, Class::Background].map(|k| 100.0 * c.rate(k));
+                line += &format!(" {p:4.0} {g:4.0} {b:4.0} {:5.1}us |", t * 1e6);
+            }
+            println!("{line}");
+        }
+    }
+}
+#[test]
+#[ignore]
+fn which_negative() {
+    for i in 0..20 {
+        let v = render("negative", TRAIN_SEED, i);
+        println!("{i}: {}", simple_candidates(&v.grey).len());
     }
 }

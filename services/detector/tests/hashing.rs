@@ -146,7 +146,8 @@ fn random_class(rng: &mut SimRng) -> Class {
 }
 
 /// `count` clutter candidates of random class inside the true holes' bounding box
-/// grown 2x about its centre, sized like holes at the view's scale.
+/// grown 2x about its centre, sized like holes at the view's scale. None lies on a
+/// hole (within half its size): that would be the hole, found twice.
 fn add_clutter_around(rng: &mut SimRng, c: &mut Candidates, count: usize, scale: f64) {
     let (mut lo, mut hi) = (Point2::new(f64::MAX, f64::MAX), Point2::new(f64::MIN, f64::MIN));
     for p in &c.points {
@@ -154,10 +155,32 @@ fn add_clutter_around(rng: &mut SimRng, c: &mut Candidates, count: usize, scale:
         hi = Point2::new(hi.x.max(p.x), hi.y.max(p.y));
     }
     let (mid, half) = (nalgebra::center(&lo, &hi), (hi - lo));
-    for _ in 0..count {
+    let holes: Vec<(Point2<f64>, f64)> = c.points.iter().copied().zip(c.sizes.iter().copied()).collect();
+    let mut added = 0;
+    while added < count {
         let p = Point2::new(mid.x + rng.range(-half.x, half.x), mid.y + rng.range(-half.y, half.y));
+        if holes.iter().any(|(h, size)| (p - h).norm() < 0.5 * size) {
+            continue;
+        }
         let class = random_class(rng);
         c.push(p, class, scale * rng.range(4.0, 9.0));
+        added += 1;
+    }
+    shuffle(rng, c);
+}
+
+/// Clutter as [`pure_clutter`] added to the candidates, none on a hole.
+fn add_clutter_anywhere(rng: &mut SimRng, c: &mut Candidates, count: usize) {
+    let holes: Vec<(Point2<f64>, f64)> = c.points.iter().copied().zip(c.sizes.iter().copied()).collect();
+    let mut added = 0;
+    while added < count {
+        let p = Point2::new(rng.range(0.0, 640.0), rng.range(0.0, 480.0));
+        if holes.iter().any(|(h, size)| (p - h).norm() < 0.5 * size) {
+            continue;
+        }
+        let class = random_class(rng);
+        c.push(p, class, rng.range(4.0, 20.0));
+        added += 1;
     }
     shuffle(rng, c);
 }
@@ -238,12 +261,23 @@ fn hashing_recovers_known_affine_transforms_with_half_the_candidates_clutter() {
         let table = table(&t);
         let mut rng = SimRng::new(11);
         let mut tally = Tally::default();
-        for _ in 0..200 {
+        for trial in 0..200 {
             let view = random_affine(&mut rng, Point2::new(320.0, 240.0));
             let mut c = true_holes(&mut rng, &t, &view, 0.5, &vec![true; t.points.len()]);
             let scale = view.scale(t.points[0]);
             add_clutter_around(&mut rng, &mut c, t.points.len(), scale);
+            if std::env::var("TRIAL").map_or(false, |v| v == format!("{name}/{trial}")) {
+                unsafe { std::env::set_var("HASH_DEBUG", "1") };
+                println!("truth {:?}", c.truth);
+                println!("classes {:?}", c.classes);
+                println!("sizes {:?}", c.sizes);
+                println!("points {:?}", c.points.iter().map(|p| (p.x.round(), p.y.round())).collect::<Vec<_>>());
+            }
             let found = c.find(&table);
+            unsafe { std::env::remove_var("HASH_DEBUG") };
+            if judge(&found, &c.truth) != Outcome::Exact {
+                println!("{name}/{trial}: {:?}", judge(&found, &c.truth));
+            }
             tally.add(judge(&found, &c.truth));
             if let Some(m) = &found {
                 assert_eq!(m.score, m.assignment.iter().flatten().count());
@@ -270,8 +304,20 @@ fn hashing_recovers_perspective_views_up_to_40_degrees_off_axis() {
             let mut c = true_holes(&mut rng, &t, &view, 0.5, &vec![true; t.points.len()]);
             let scale = view.scale(t.points[0]);
             add_clutter_around(&mut rng, &mut c, t.points.len(), scale);
+            if std::env::var("TRIAL").map_or(false, |v| v == format!("{name}/{trial}")) {
+                unsafe { std::env::set_var("HASH_DEBUG", "1") };
+                println!("truth {:?}", c.truth);
+                println!("classes {:?}", c.classes);
+                println!("sizes {:?}", c.sizes.iter().map(|s| s.round()).collect::<Vec<_>>());
+                println!("points {:?}", c.points.iter().map(|p| (p.x.round(), p.y.round())).collect::<Vec<_>>());
+                println!("off axis {off_axis}, distance {}", view.translation.norm());
+            }
             let found = c.find(&table);
+            unsafe { std::env::remove_var("HASH_DEBUG") };
             let outcome = judge(&found, &c.truth);
+            if outcome != Outcome::Exact {
+                println!("{name}/{trial}: {outcome:?}");
+            }
             if trial % 2 == 0 {
                 tally.add(outcome)
             } else {
@@ -282,7 +328,7 @@ fn hashing_recovers_perspective_views_up_to_40_degrees_off_axis() {
                 for (j, p) in t.points.iter().enumerate() {
                     let err = (m.projected[j] - view.map(*p)).norm();
                     assert!(
-                        err < 0.3 * hole_size_mm(t.classes[j]) * view.scale(*p),
+                        err < 0.5 * hole_size_mm(t.classes[j]) * view.scale(*p),
                         "{name} hole {j}: {err:.2} px off"
                     );
                 }
@@ -409,16 +455,33 @@ fn pure_clutter(rng: &mut SimRng, count: usize) -> Candidates {
 #[test]
 fn pure_clutter_gives_no_outlet() {
     for name in ["2x1", "2x2"] {
-        let table = table(&template(name));
+        let t = template(name);
+        let table = table(&t);
         let mut rng = SimRng::new(16);
         let mut alarms = 0;
         let trials = 500;
         for trial in 0..trials {
             let count = 30 + (trial * 121 / trials);
             let c = pure_clutter(&mut rng, count);
-            if let Some(m) = c.find(&table) {
+            if std::env::var("TRIAL").map_or(false, |v| v == format!("{name}/{trial}")) {
+                unsafe { std::env::set_var("HASH_DEBUG", "1") };
+            }
+            let found = c.find(&table);
+            unsafe { std::env::remove_var("HASH_DEBUG") };
+            if let Some(m) = found {
                 alarms += 1;
                 println!("{name}: false alarm in trial {trial} ({count} candidates), score {}", m.score);
+                let l = m.transform.fixed_view::<2, 2>(0, 0).into_owned();
+                let svd = l.svd(false, false);
+                println!("  transform {:?} sv {:?}", m.transform, svd.singular_values);
+                for (j, a) in m.assignment.iter().enumerate() {
+                    if let Some(i) = a {
+                        println!(
+                            "  hole {j} {:?} cand {i} {:?} size {:.1} proj {:?}",
+                            t.classes[j], c.points[*i], c.sizes[*i], m.projected[j]
+                        );
+                    }
+                }
             }
         }
         println!("{name} pure clutter (30-150 candidates): {alarms} false alarms in {trials}");
@@ -557,10 +620,7 @@ fn time_per_call_is_reported() {
                 let off_axis = rng.range(0.0, 40.0).to_radians();
                 let view = random_perspective(&mut rng, off_axis);
                 let mut c = true_holes(&mut rng, &t, &view, 0.5, &vec![true; t.points.len()]);
-                let clutter = pure_clutter(&mut rng, count - t.points.len());
-                for i in 0..clutter.points.len() {
-                    c.push(clutter.points[i], clutter.classes[i], clutter.sizes[i]);
-                }
+                add_clutter_anywhere(&mut rng, &mut c, count - t.points.len());
                 calls.push(c);
             }
             let empty: Vec<Candidates> = (0..20).map(|_| pure_clutter(&mut rng, count)).collect();
@@ -574,5 +634,110 @@ fn time_per_call_is_reported() {
                 println!("{name}, {count} candidates, {what}: {per_call:.3} ms per call, found {found}/{}", set.len());
             }
         }
+    }
+}
+
+#[test]
+fn zz_sweep() {
+    for eps in [1e-3, 3e-3, 1e-2, 3e-2] {
+        let params = HashParams { max_nfa: eps, ..HashParams::default() };
+        let mut line = format!("eps {eps}: ");
+        for name in ["2x1", "2x2"] {
+            let t = template(name);
+            let table = table(&t);
+            let mut rng = SimRng::new(16);
+            let mut alarms = 0;
+            for trial in 0..500 {
+                let count = 30 + (trial * 121 / 500);
+                let c = pure_clutter(&mut rng, count);
+                alarms += usize::from(find_outlet(&table, &c.points, &c.classes, &c.sizes, &params).is_some());
+            }
+            line += &format!("{name} clutter FA {alarms}/500; ");
+        }
+        let t = template("2x1");
+        let table = table(&t);
+        let mut rng = SimRng::new(14);
+        let mut tally = Tally::default();
+        for a in 0..6 {
+            for b in a + 1..6 {
+                for _ in 0..10 {
+                    let view = random_affine(&mut rng, Point2::new(320.0, 240.0));
+                    let keep: Vec<bool> = (0..6).map(|j| j != a && j != b).collect();
+                    let mut c = true_holes(&mut rng, &t, &view, 0.5, &keep);
+                    shuffle(&mut rng, &mut c);
+                    let found = find_outlet(&table, &c.points, &c.classes, &c.sizes, &params);
+                    tally.add(judge(&found, &c.truth));
+                }
+            }
+        }
+        line += &format!("missing2 {tally:?}; ");
+        let mut rng = SimRng::new(14);
+        let mut tally = Tally::default();
+        for a in 0..6 {
+            for b in a + 1..6 {
+                for _ in 0..10 {
+                    let view = random_affine(&mut rng, Point2::new(320.0, 240.0));
+                    let keep: Vec<bool> = (0..6).map(|j| j != a && j != b).collect();
+                    let mut c = true_holes(&mut rng, &t, &view, 0.5, &keep);
+                    let scale = view.scale(t.points[0]);
+                    add_clutter_around(&mut rng, &mut c, 4, scale);
+                    let found = find_outlet(&table, &c.points, &c.classes, &c.sizes, &params);
+                    tally.add(judge(&found, &c.truth));
+                }
+            }
+        }
+        line += &format!("missing2+clutter {tally:?}");
+        println!("{line}");
+    }
+}
+
+#[test]
+fn zz_sweep_k() {
+    for k in [4, 6] {
+        let params = HashParams { neighbours: k, ..HashParams::default() };
+        let mut line = format!("K {k}: ");
+        for name in ["2x1", "2x2"] {
+            let t = template(name);
+            let table = table(&t);
+            let mut rng = SimRng::new(12);
+            let mut tally = Tally::default();
+            let mut sets = Vec::new();
+            for _ in 0..200 {
+                let off_axis = rng.range(0.0, 40.0);
+                let view = random_perspective(&mut rng, off_axis.to_radians());
+                let mut c = true_holes(&mut rng, &t, &view, 0.5, &vec![true; t.points.len()]);
+                add_clutter_anywhere(&mut rng, &mut c, 150 - t.points.len());
+                let found = find_outlet(&table, &c.points, &c.classes, &c.sizes, &params);
+                tally.add(judge(&found, &c.truth));
+                sets.push(c);
+            }
+            let mut ms = f64::INFINITY;
+            for _ in 0..5 {
+                let start = Instant::now();
+                for c in &sets {
+                    std::hint::black_box(find_outlet(&table, &c.points, &c.classes, &c.sizes, &params));
+                }
+                ms = ms.min(start.elapsed().as_secs_f64() * 1e3 / 200.0);
+            }
+            let mut rng = SimRng::new(11);
+            let mut local = Tally::default();
+            for _ in 0..200 {
+                let view = random_affine(&mut rng, Point2::new(320.0, 240.0));
+                let mut c = true_holes(&mut rng, &t, &view, 0.5, &vec![true; t.points.len()]);
+                let scale = view.scale(t.points[0]);
+                add_clutter_around(&mut rng, &mut c, t.points.len(), scale);
+                local.add(judge(&find_outlet(&table, &c.points, &c.classes, &c.sizes, &params), &c.truth));
+            }
+            line += &format!(
+                "{name} persp+150 {}/{} wrong {} {ms:.2} ms; local {}/{} wrong {}; ",
+                tally.exact,
+                tally.total(),
+                tally.wrong,
+                local.exact,
+                local.total(),
+                local.wrong
+            );
+        }
+        println!("{line}");
     }
 }

@@ -51,6 +51,25 @@ struct Outcome {
     stages: [f64; 4],
     off_axis_deg: f64,
     distance_m: f64,
+    /// Hole position errors (mm) per pose mode, for correct detections.
+    pose_mm: PoseErrors,
+}
+
+/// Hole position errors (mm) of each pose mode, and the Cramér-Rao bounds (RMS
+/// over holes, mm) for the same pose, pixel noise and wall measurement.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+struct PoseErrors {
+    mono: Vec<f64>,
+    normal: Vec<f64>,
+    normal_cloud: Vec<f64>,
+    plane: Vec<f64>,
+    bound_normal: Option<f64>,
+    bound_plane: Option<f64>,
+    /// RMS pixel error of this detection's holes: the measured pixel noise.
+    pixel_rms: Option<f64>,
+    /// What OpenCV needs to solve the same holes (tests/opencv_pnp.py).
+    #[serde(skip)]
+    opencv_input: Option<serde_json::Value>,
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -118,6 +137,13 @@ pub fn eval(args: EvalArgs) -> Result<()> {
         let _ = writeln!(jsonl, "{}", serde_json::to_string(o)?);
     }
     std::fs::write(args.out.join("results.jsonl"), jsonl)?;
+    let mut pose_inputs = String::new();
+    for o in &outcomes {
+        if let Some(v) = &o.pose_mm.opencv_input {
+            let _ = writeln!(pose_inputs, "{v}");
+        }
+    }
+    std::fs::write(args.out.join("pose_inputs.jsonl"), pose_inputs)?;
     plot(&outcomes).save_with_format(args.out.join("rates.png"), image::ImageFormat::Png)?;
     println!("{table}");
     tracing::info!("wrote {}/table.md, rates.png, results.jsonl", args.out.display());
@@ -151,6 +177,10 @@ fn evaluate_one(
     };
     let found = report.detection.is_some();
     let correct = positive && found && errors_px.iter().all(|e| *e <= args.tolerance_px);
+    let pose_mm = match (&report.detection, correct) {
+        (Some(d), true) => pose_errors(d, detector, camera, &frame, &scene, index, &errors_px),
+        _ => PoseErrors::default(),
+    };
     let view = truth.view.unwrap_or(outlet_protocol::truth::ViewJson {
         distance_m: f64::NAN,
         off_axis_deg: f64::NAN,
@@ -168,7 +198,77 @@ fn evaluate_one(
         stages: [candidates, classify, hash, refine],
         off_axis_deg: view.off_axis_deg,
         distance_m: view.distance_m,
+        pose_mm,
     })
+}
+
+/// Wall normal noise of the `normal` mode's evaluation (radians): 1 degree.
+const NORMAL_NOISE_RAD: f64 = 0.017;
+
+fn pose_errors(
+    detection: &outlet_detector::detect::Detection,
+    detector: &Detector,
+    camera: &outlet_protocol::CameraModel,
+    frame: &outlet_sim::RenderedFrame,
+    scene: &outlet_sim::Scene,
+    index: usize,
+    errors_px: &[f64],
+) -> PoseErrors {
+    use nalgebra::{Point2, Point3, Vector3};
+    use outlet_pose::{Observations, PlaneMeasurement, cramer_rao, solve_mono, solve_normal, solve_plane};
+    let geometry = &detector.template().geometry;
+    let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
+    let pixels: Vec<Point2<f64>> = detection.holes.iter().map(|h| h.pixel).collect();
+    let truth: Vec<Point3<f64>> = frame.truth.holes.iter().filter_map(|h| h.position_m.map(Point3::from)).collect();
+    let pixel_rms = (errors_px.iter().map(|e| e * e).sum::<f64>() / errors_px.len().max(1) as f64).sqrt();
+    let obs = Observations { model_mm: &model, pixels: &pixels, camera, pixel_sigma: 0.25 };
+    let errors = |holes: &[Point3<f64>]| -> Vec<f64> {
+        holes.iter().zip(&truth).map(|(h, t)| (h - t).norm() * 1000.0).collect()
+    };
+    let mut out = PoseErrors { pixel_rms: Some(pixel_rms), ..PoseErrors::default() };
+    if let Ok(p) = solve_mono(&obs) {
+        out.mono = errors(&p.holes_cam_m);
+    }
+    // The true wall normal tilted by 1 degree in a direction drawn per image.
+    let n_true = Vector3::from(frame.truth.wall_plane.normal);
+    let [e1, e2] = outlet_pose::tangent_basis(&n_true);
+    let a = (index as f64 * 2.399963) % std::f64::consts::TAU; // golden angle: spread directions
+    let n_noisy = (n_true + (e1 * a.cos() + e2 * a.sin()) * NORMAL_NOISE_RAD.tan()).normalize();
+    if let Ok(p) = solve_normal(&obs, &n_noisy, NORMAL_NOISE_RAD) {
+        out.normal = errors(&p.holes_cam_m);
+    }
+    let face_offset_m = geometry.face_offset_mm / 1000.0;
+    if let Ok(plane) = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default()) {
+        let measurement = PlaneMeasurement {
+            normal: plane.normal,
+            distance_m: plane.distance_m,
+            covariance: plane.covariance,
+            tangent: plane.tangent,
+            face_offset_m,
+        };
+        if let Ok(p) = solve_plane(&obs, &measurement) {
+            out.plane = errors(&p.holes_cam_m);
+        }
+        let sigma = plane.covariance[(0, 0)].max(plane.covariance[(1, 1)]).sqrt();
+        if let Ok(p) = solve_normal(&obs, &plane.normal, sigma) {
+            out.normal_cloud = errors(&p.holes_cam_m);
+        }
+        // Bounds at the truth, with the measured pixel noise.
+        let bound_obs = Observations { pixel_sigma: pixel_rms.max(0.01) / std::f64::consts::SQRT_2, ..obs };
+        let rms = |c: Vec<nalgebra::Matrix3<f64>>| {
+            (c.iter().map(|m| m.trace()).sum::<f64>() / c.len().max(1) as f64).sqrt() * 1000.0
+        };
+        out.bound_plane = cramer_rao(&bound_obs, &scene.pose, Some(&measurement), None).ok().map(rms);
+        out.bound_normal = cramer_rao(&bound_obs, &scene.pose, None, Some(NORMAL_NOISE_RAD)).ok().map(rms);
+    }
+    out.opencv_input = Some(serde_json::json!({
+        "model_mm": model.iter().map(|p| [p.x, p.y]).collect::<Vec<_>>(),
+        "pixels": pixels.iter().map(|p| [p.x, p.y]).collect::<Vec<_>>(),
+        "camera_matrix": [camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0],
+        "distortion": camera.distortion,
+        "truth_m": truth.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>(),
+    }));
+    out
 }
 
 fn table(scenarios: &[&str], outcomes: &[Outcome], args: &EvalArgs, camera: &outlet_protocol::CameraModel) -> String {
@@ -208,6 +308,7 @@ fn table(scenarios: &[&str], outcomes: &[Outcome], args: &EvalArgs, camera: &out
             fmt(percentile(&errors, 0.95)),
         );
     }
+    let _ = writeln!(s, "\n{}", pose_table(outcomes));
     let n = outcomes.len().max(1) as f64;
     let _ = writeln!(
         s,
@@ -217,6 +318,67 @@ fn table(scenarios: &[&str], outcomes: &[Outcome], args: &EvalArgs, camera: &out
         all_stages[2] / n,
         all_stages[3] / n
     );
+    s
+}
+
+/// Hole position error per pose mode over the correct detections, beside the
+/// Cramér-Rao bounds at the measured pixel noise.
+fn pose_table(outcomes: &[Outcome]) -> String {
+    let mut s = String::new();
+    let stats = |mut v: Vec<f64>| -> (f64, f64, usize) {
+        v.retain(|x| x.is_finite());
+        v.sort_by(f64::total_cmp);
+        let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+        (rms, percentile(&v, 0.95), v.len())
+    };
+    let images = outcomes.iter().filter(|o| o.pose_mm.pixel_rms.is_some()).count();
+    let mut pixel: Vec<f64> = outcomes.iter().filter_map(|o| o.pose_mm.pixel_rms).collect();
+    pixel.sort_by(f64::total_cmp);
+    let _ = writeln!(
+        s,
+        "Hole position error over {images} correct detections (measured pixel noise: median RMS {:.3} px):\n",
+        percentile(&pixel, 0.5)
+    );
+    let _ = writeln!(s, "| mode | what it uses | holes | RMS (mm) | p95 (mm) | Cramér-Rao bound, RMS (mm) |");
+    let _ = writeln!(s, "|---|---|---:|---:|---:|---:|");
+    let bound = |f: fn(&PoseErrors) -> Option<f64>| {
+        let v: Vec<f64> = outcomes.iter().filter_map(|o| f(&o.pose_mm)).collect();
+        if v.is_empty() {
+            "-".to_string()
+        } else {
+            format!("{:.3}", (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
+        }
+    };
+    let rows: [(&str, &str, Vec<f64>, String); 4] = [
+        (
+            "plane",
+            "pixels + stereo cloud (normal and distance)",
+            outcomes.iter().flat_map(|o| o.pose_mm.plane.clone()).collect(),
+            bound(|p| p.bound_plane),
+        ),
+        (
+            "normal",
+            "pixels + wall normal with 1 deg noise (paper)",
+            outcomes.iter().flat_map(|o| o.pose_mm.normal.clone()).collect(),
+            bound(|p| p.bound_normal),
+        ),
+        (
+            "normal",
+            "pixels + the cloud's normal (paper)",
+            outcomes.iter().flat_map(|o| o.pose_mm.normal_cloud.clone()).collect(),
+            "-".to_string(),
+        ),
+        (
+            "mono",
+            "pixels only (planar PnP)",
+            outcomes.iter().flat_map(|o| o.pose_mm.mono.clone()).collect(),
+            "-".to_string(),
+        ),
+    ];
+    for (mode, uses, errors, b) in rows {
+        let (rms, p95, n) = stats(errors);
+        let _ = writeln!(s, "| {mode} | {uses} | {n} | {rms:.3} | {p95:.3} | {b} |");
+    }
     s
 }
 
