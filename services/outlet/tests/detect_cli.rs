@@ -1,0 +1,225 @@
+//! `outlet detect`, `outlet train` and `outlet eval` as CONTRACT.md defines them,
+//! on rendered images.
+
+use serde_json::Value;
+use std::path::Path;
+use std::process::Command;
+
+fn outlet(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_outlet")).args(args).output().expect("run outlet")
+}
+
+fn render(dir: &Path, scenario: &str, count: usize, seed: u64) {
+    let out = outlet(&[
+        "render",
+        "--scenario",
+        scenario,
+        "--count",
+        &count.to_string(),
+        "--seed",
+        &seed.to_string(),
+        "--out",
+        dir.to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
+fn lines(out: &std::process::Output) -> Vec<Value> {
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("one JSON object per line"))
+        .collect()
+}
+
+fn image_of(dir: &Path, stem: &str) -> String {
+    let png = dir.join(format!("{stem}.png"));
+    let path = if png.exists() { png } else { dir.join(format!("{stem}.jpg")) };
+    path.to_str().expect("utf-8").to_string()
+}
+
+fn truth(dir: &Path, stem: &str) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{stem}.json"))).expect("truth")).expect("json")
+}
+
+/// Seeds whose scenes are easy (near frontal): the CLI is tested here, not the
+/// detector's limits (those are `outlet eval`'s job).
+fn frontal_seed(scenario: &str) -> u64 {
+    let camera = outlet_protocol::CameraModel::default_vga();
+    (0..200)
+        .find(|&s| {
+            let scene = outlet_sim::sample_scene(scenario, s, 0, &camera).expect("scene");
+            let v = outlet_sim::truth::view(&scene);
+            v.off_axis_deg < 15.0 && v.distance_m < 0.35 && scene.sensor.exposure > 0.7 && scene.sensor.exposure < 1.3
+        })
+        .expect("a frontal scene")
+}
+
+#[test]
+fn detect_json_gives_one_line_per_image_in_order_and_goes_on_after_a_bad_one() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let seed = frontal_seed("white2x2");
+    render(dir.path(), "white2x2", 1, seed);
+    let corrupt = dir.path().join("corrupt.png");
+    std::fs::write(&corrupt, b"\x89PNG\r\n\x1a\nthis is not a png").expect("write");
+    let good = image_of(dir.path(), "white2x2_0000");
+    let camera = dir.path().join("white2x2_0000.camera.yaml");
+    let points = dir.path().join("white2x2_0000.ply");
+    let out = outlet(&[
+        "detect",
+        "--template",
+        "2x2",
+        "--camera",
+        camera.to_str().expect("utf-8"),
+        "--points",
+        points.to_str().expect("utf-8"),
+        "--json",
+        &good,
+        corrupt.to_str().expect("utf-8"),
+        "/nonexistent/image.png",
+    ]);
+    assert!(out.status.success(), "some input was processed: {}", String::from_utf8_lossy(&out.stderr));
+    let records = lines(&out);
+    assert_eq!(records.len(), 3);
+    let t = truth(dir.path(), "white2x2_0000");
+    let r = &records[0];
+    assert_eq!(r["image"].as_str(), Some(good.as_str()));
+    assert_eq!(r["found"], Value::Bool(true), "{r}");
+    assert_eq!(r["template"].as_str(), Some("2x2"));
+    assert_eq!(r["pose"]["mode"].as_str(), Some("plane"));
+    let holes = r["holes"].as_array().expect("holes");
+    assert_eq!(holes.len(), 12);
+    for (h, g) in holes.iter().zip(t["holes"].as_array().expect("truth holes")) {
+        assert_eq!(h["kind"], g["kind"]);
+        let (du, dv) = (
+            h["pixel"][0].as_f64().unwrap_or(f64::NAN) - g["pixel"][0].as_f64().unwrap_or(0.0),
+            h["pixel"][1].as_f64().unwrap_or(f64::NAN) - g["pixel"][1].as_f64().unwrap_or(0.0),
+        );
+        assert!((du * du + dv * dv).sqrt() < 1.0, "pixel off: {h} vs {g}");
+        let e: f64 = (0..3)
+            .map(|k| {
+                (h["position_m"][k].as_f64().unwrap_or(f64::NAN) - g["position_m"][k].as_f64().unwrap_or(0.0)).powi(2)
+            })
+            .sum::<f64>()
+            .sqrt();
+        assert!(e < 0.001, "position off by {e} m");
+        assert!(h["covariance_m2"][0][0].as_f64().is_some_and(|v| v > 0.0));
+    }
+    for bad in &records[1..] {
+        assert_eq!(bad["found"], Value::Bool(false));
+        assert!(bad["error"].as_str().is_some_and(|e| !e.is_empty()), "{bad}");
+        assert!(bad["holes"].is_null() || bad["holes"].as_array().is_some_and(Vec::is_empty));
+    }
+}
+
+#[test]
+fn no_processable_input_is_a_failure_and_a_negative_is_found_false() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = outlet(&["detect", "--json", "/nonexistent/a.png"]);
+    assert!(!out.status.success());
+    assert_eq!(lines(&out).len(), 1);
+    render(dir.path(), "negative", 3, 4);
+    for i in 0..3 {
+        let stem = format!("negative_{i:04}");
+        let t = truth(dir.path(), &stem);
+        let out = outlet(&[
+            "detect",
+            "--template",
+            t["search_template"].as_str().expect("sought"),
+            "--json",
+            &image_of(dir.path(), &stem),
+        ]);
+        assert!(out.status.success());
+        let r = &lines(&out)[0];
+        assert_eq!(r["found"], Value::Bool(false), "false alarm on {stem}: {r}");
+        assert_eq!(r["holes"].as_array().map(Vec::len), Some(0));
+        assert!(r["pose"].is_null());
+    }
+}
+
+#[test]
+fn batch_manifest_resolves_relative_paths_and_takes_normals() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let seed = frontal_seed("orange2x1");
+    render(dir.path(), "orange2x1", 1, seed);
+    let t = truth(dir.path(), "orange2x1_0000");
+    let image =
+        Path::new(&image_of(dir.path(), "orange2x1_0000")).file_name().expect("name").to_string_lossy().into_owned();
+    let n = &t["wall_plane"]["normal"];
+    let manifest = format!(
+        "{{\"image\": \"{image}\", \"camera\": \"orange2x1_0000.camera.yaml\", \"template\": \"2x1\", \"normal\": [{}, {}, {}]}}\n{{\"image\": \"{image}\", \"camera\": \"orange2x1_0000.camera.yaml\", \"template\": \"2x1\", \"points\": \"orange2x1_0000.ply\"}}\n{{\"image\": \"missing.png\"}}\n",
+        -n[0].as_f64().unwrap_or(0.0),
+        -n[1].as_f64().unwrap_or(0.0),
+        -n[2].as_f64().unwrap_or(1.0)
+    );
+    let path = dir.path().join("manifest.jsonl");
+    std::fs::write(&path, manifest).expect("manifest");
+    let out = outlet(&["detect", "--batch", path.to_str().expect("utf-8"), "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let records = lines(&out);
+    assert_eq!(records.len(), 3);
+    assert_eq!(records[0]["pose"]["mode"].as_str(), Some("normal"), "{}", records[0]);
+    assert_eq!(records[1]["pose"]["mode"].as_str(), Some("plane"), "{}", records[1]);
+    assert!(records[2]["error"].as_str().is_some());
+}
+
+#[test]
+fn a_template_trained_from_one_image_detects_and_a_damaged_one_is_named() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let seed = frontal_seed("fw_2x2orange");
+    render(dir.path(), "fw_2x2orange", 1, seed);
+    let t = truth(dir.path(), "fw_2x2orange_0000");
+    let labels = serde_json::json!({"holes": t["holes"].as_array().expect("holes").iter().map(|h| serde_json::json!({"kind": h["kind"], "pixel": h["pixel"]})).collect::<Vec<_>>()});
+    let labels_path = dir.path().join("labels.json");
+    std::fs::write(&labels_path, labels.to_string()).expect("labels");
+    let template = dir.path().join("orange.tpl");
+    let image = image_of(dir.path(), "fw_2x2orange_0000");
+    let out = outlet(&[
+        "train",
+        "--image",
+        &image,
+        "--labels",
+        labels_path.to_str().expect("utf-8"),
+        "--geometry",
+        "2x2",
+        "--output",
+        template.to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = outlet(&["detect", "--template", template.to_str().expect("utf-8"), "--json", &image]);
+    assert_eq!(lines(&out)[0]["found"], Value::Bool(true), "{}", String::from_utf8_lossy(&out.stdout));
+    // Truncated and corrupted files are refused with the file's name.
+    let bytes = std::fs::read(&template).expect("template");
+    let cut = dir.path().join("cut.tpl");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).expect("write");
+    let mut flipped = bytes.clone();
+    let mid = flipped.len() / 2;
+    flipped[mid] ^= 0x40;
+    let bad = dir.path().join("flipped.tpl");
+    std::fs::write(&bad, &flipped).expect("write");
+    for (path, word) in [(&cut, "truncated"), (&bad, "corrupted")] {
+        let out = outlet(&["detect", "--template", path.to_str().expect("utf-8"), "--json", &image]);
+        let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+        assert!(text.contains(path.to_str().expect("utf-8")) && text.contains(word), "{text}");
+    }
+}
+
+#[test]
+fn eval_writes_table_plot_and_pose_inputs_for_opencv() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out =
+        outlet(&["eval", "--scenario", "orange2x1", "--count", "6", "--out", dir.path().to_str().expect("utf-8")]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let table = std::fs::read_to_string(dir.path().join("table.md")).expect("table");
+    assert!(table.contains("| orange2x1 | 6 |"), "{table}");
+    assert!(table.contains("| plane |") && table.contains("| mono |"));
+    let plot = image::open(dir.path().join("rates.png")).expect("plot");
+    assert!(plot.width() > 400);
+    // OpenCV's IPPE and SQPnP on the same pixels (CI installs opencv-python-headless).
+    let inputs = dir.path().join("pose_inputs.jsonl");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/opencv_pnp.py");
+    let out = Command::new("python3").arg(&script).arg(&inputs).output().expect("python3");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    let solved = summary["ippe"]["solved"].as_u64().expect("ippe ran");
+    assert!(solved >= 1 && summary["ippe"]["rms_mm"].as_f64().is_some_and(|v| v.is_finite()));
+}
