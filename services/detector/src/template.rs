@@ -117,7 +117,9 @@ pub struct TrainingImage<'a> {
 
 /// Trains a template from one labelled image and background images (or, without
 /// them, only the training image's candidates away from the holes). Candidates
-/// are the hole candidates of each image, already found.
+/// are the hole candidates of each image, already found. With `calibrate_sizes`
+/// the candidates' sizes on the labelled holes set how candidates are scaled for
+/// classification (worth it for photographs; the rendered default suits renders).
 pub fn train_template(
     name: &str,
     geometry: OutletGeometry,
@@ -125,6 +127,7 @@ pub fn train_template(
     training_candidates: &[Candidate],
     backgrounds: &[(&GrayImage, Vec<Candidate>)],
     params: &DescriptorParams,
+    calibrate_sizes: bool,
 ) -> Result<Template, TemplateError> {
     let invalid = |reason: String| TemplateError::Invalid { name: name.to_string(), reason };
     if training.holes.len() != geometry.holes.len() {
@@ -161,8 +164,25 @@ pub fn train_template(
             features.extend(background_features(grey, candidates, &[], 0.0, per_image));
         }
     }
-    let descriptor = crate::descriptor::train(training.grey, &features, params)
+    let mut descriptor = crate::descriptor::train(training.grey, &features, params)
         .map_err(|source| TemplateError::Training { name: name.to_string(), source })?;
+    if calibrate_sizes {
+        // How big the candidate stage sees this outlet's holes, relative to their
+        // spacing: on a real photograph (blur, an oblique view, dots merging with
+        // the ground holes) it differs from the rendered default.
+        let pairs: Vec<(TrainingFeature, Candidate)> = features
+            .iter()
+            .filter(|f| f.class != Class::Background)
+            .filter_map(|f| {
+                training_candidates
+                    .iter()
+                    .filter(|c| (c.centre - f.centre).norm() < 0.3 * pitch_px)
+                    .min_by(|a, b| (a.centre - f.centre).norm().total_cmp(&(b.centre - f.centre).norm()))
+                    .map(|c| (*f, *c))
+            })
+            .collect();
+        descriptor.calibrate_candidate_extent(&pairs);
+    }
     Ok(Template { name: name.to_string(), geometry, descriptor })
 }
 

@@ -432,6 +432,7 @@ pub fn train(args: TrainArgs) -> Result<()> {
         &candidates,
         &refs,
         &DescriptorParams::default(),
+        true,
     )?;
     template.write(&args.output)?;
     let counts = template.descriptor.sample_counts();

@@ -60,6 +60,7 @@ pub fn builtin(name: &str) -> Result<Template> {
         &candidates,
         &refs,
         &DescriptorParams::default(),
+        false,
     )
     .with_context(|| format!("training the built-in {name} template"))
 }
