@@ -54,14 +54,14 @@ impl CandidateParams {
     /// - area >= 8 px: drops sensor-noise specks, which otherwise double the count in
     ///   dark frames; the smallest hole (a slot at 50 cm, 640x480) covers ~19 px.
     pub fn high_recall() -> Self {
-        Self { levels: (10..=250).step_by(10).collect(), min_contrast: 1.2, min_area: 8, ..Self::default() }
+        Self { levels: (10..=240).step_by(10).collect(), min_contrast: 1.1, min_area: 8, ..Self::default() }
     }
 }
 
 /// Candidates closer than this (pixels) are one blob seen at several levels.
 pub const DUPLICATE_RADIUS_PX: f64 = 2.0;
 
-pub static CENTRE_MODE: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+pub static PH: [std::sync::atomic::AtomicU64; 4] = [const { std::sync::atomic::AtomicU64::new(0) }; 4];
 /// Label of a pixel not yet added.
 const NONE: u32 = u32::MAX;
 /// Label of a pixel (or parent of a root) in a component too large to be a hole.
@@ -77,27 +77,21 @@ struct Blob {
     area: u32,
     sum_x: u64,
     sum_y: u64,
-    sum_v: u64,
-    sum_s: u64,
 }
 
 impl Blob {
-    fn new(x: u32, y: u32, v: u8, sv: u8) -> Self {
+    /// The pixels x..x + len of row y.
+    fn run(x: u32, y: u32, len: u32) -> Self {
+        let (x, y, n) = (x as u64, y as u64, len as u64);
         Self {
-            x0: x,
-            y0: y,
-            x1: x,
-            y1: y,
-            area: 1,
-            sum_x: x as u64,
-            sum_y: y as u64,
-            sum_v: v as u64,
-            sum_s: sv as u64,
+            x0: x as u32,
+            y0: y as u32,
+            x1: (x + n - 1) as u32,
+            y1: y as u32,
+            area: len,
+            sum_x: n * x + n * (n - 1) / 2,
+            sum_y: n * y,
         }
-    }
-
-    fn add(&mut self, x: u32, y: u32, v: u8, sv: u8) {
-        self.merge(&Self::new(x, y, v, sv));
     }
 
     fn merge(&mut self, o: &Blob) {
@@ -108,8 +102,6 @@ impl Blob {
         self.area += o.area;
         self.sum_x += o.sum_x;
         self.sum_y += o.sum_y;
-        self.sum_v += o.sum_v;
-        self.sum_s += o.sum_s;
     }
 
     fn size(&self) -> [u32; 2] {
@@ -150,43 +142,52 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
     if w == 0 || h == 0 {
         return Vec::new();
     }
+    let t0 = std::time::Instant::now();
     let smooth = smooth_3x3(grey.as_raw(), w, h);
-    let raw = grey.as_raw();
+    PH[0].fetch_add(t0.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
+    let t0 = std::time::Instant::now();
 
-    // Band b holds the grey values in [levels[b-1], levels[b]): within a band the order
-    // of the pixels does not matter, and raster order keeps memory accesses local.
+    // Band b holds the grey values in [levels[b-1], levels[b]); within a band the order
+    // does not matter. The pixels go in as runs (maximal stretches of one band along a
+    // row), counting-sorted by band, in raster order within a band to keep memory
+    // accesses local. Indices are in a frame one pixel wider on each side, so that every
+    // pixel has 8 neighbours.
     let bands = levels.len();
     let mut band_of = [u8::MAX; 256];
     for (v, band) in band_of.iter_mut().enumerate().take(top as usize) {
         *band = levels.partition_point(|&l| l as usize <= v) as u8;
     }
-    let mut histogram = [0u32; 256];
-    for &v in &smooth {
-        histogram[v as usize] += 1;
-    }
-    let mut start = vec![0u32; bands + 1];
-    for (&count, &band) in histogram.iter().zip(&band_of).take(top as usize) {
-        start[band as usize + 1] += count;
-    }
-    for b in 1..=bands {
+    let stride = w + 2;
+    let for_each_run = |f: &mut dyn FnMut(usize, u32, u32)| {
+        for (y, row) in smooth.chunks_exact(w).enumerate() {
+            let p0 = (y + 1) * stride + 1;
+            let (mut x0, mut band) = (0, band_of[row[0] as usize]);
+            for (x, &v) in row.iter().enumerate().skip(1) {
+                if band_of[v as usize] != band {
+                    f(band as usize, (p0 + x0) as u32, (x - x0) as u32);
+                    (x0, band) = (x, band_of[v as usize]);
+                }
+            }
+            f(band as usize, (p0 + x0) as u32, (w - x0) as u32);
+        }
+    };
+    let mut start = vec![0u32; bands + 2];
+    for_each_run(&mut |band, _, _| start[band.min(bands) + 1] += 1);
+    for b in 1..start.len() {
         start[b] += start[b - 1];
     }
-    // Pixels are indexed in a frame one pixel wider on each side, so that every pixel
-    // has 8 neighbours to look at.
-    let stride = w + 2;
-    let mut order = vec![0u32; start[bands] as usize];
+    let mut runs = vec![(0u32, 0u32); start[bands] as usize];
     let mut next = start.clone();
-    for (y, row) in smooth.chunks_exact(w).enumerate() {
-        let p0 = (y + 1) * stride + 1;
-        for (x, &v) in row.iter().enumerate() {
-            let band = band_of[v as usize] as usize;
-            if band < bands {
-                order[next[band] as usize] = (p0 + x) as u32;
-                next[band] += 1;
-            }
+    for_each_run(&mut |band, p, len| {
+        if band < bands {
+            runs[next[band] as usize] = (p, len);
+            next[band] += 1;
         }
-    }
+    });
 
+    PH[1].fetch_add(t0.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
+    let t0 = std::time::Instant::now();
+    PH[3].fetch_add(runs.len() as u64 * 1000, std::sync::atomic::Ordering::Relaxed);
     let mut label = vec![NONE; padded];
     let mut parent: Vec<u32> = Vec::new();
     let mut blobs: Vec<Blob> = Vec::new();
@@ -195,68 +196,64 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
     let mut found = Vec::new();
     let max_side = params.max_side.min(255);
     for (b, &level) in levels.iter().enumerate() {
-        for &p in &order[start[b] as usize..start[b + 1] as usize] {
-            let p = p as usize;
-            let xy = || ((p % stride - 1) as u32, (p / stride - 1) as u32);
-            let (up, down) = (&label[p - stride - 1..p - stride + 2], &label[p + stride - 1..p + stride + 2]);
-            let around = [up[0], up[1], up[2], label[p - 1], label[p + 1], down[0], down[1], down[2]];
-            let lowest = around.iter().fold(NONE, |a, &l| a.min(l));
-            if lowest >= DEAD {
-                // No live neighbour: one more pixel of a dead component, or a new one.
-                label[p] = if lowest == DEAD {
+        for &(p, len) in &runs[start[b] as usize..start[b + 1] as usize] {
+            let (p, len) = (p as usize, len as usize);
+            let above = &label[p - stride - 1..p - stride + len + 1];
+            let below = &label[p + stride - 1..p + stride + len + 1];
+            let sides = [label[p - 1], label[p + len]];
+            let around = || above.iter().chain(below).chain(&sides).copied();
+            let lowest = around().fold(NONE, u32::min);
+            // Union with every live component around; any dead one kills the lot.
+            let (mut target, mut dead) = (None, lowest == DEAD);
+            if lowest < DEAD {
+                let mut last = NONE;
+                for l in around() {
+                    if l == NONE || l == last {
+                        continue;
+                    }
+                    last = l;
+                    let Some(r) = (l != DEAD).then(|| find(&mut parent, l)).flatten() else {
+                        dead = true;
+                        continue;
+                    };
+                    target = Some(match target {
+                        Some(t) if t != r => {
+                            let (keep, gone) =
+                                if blobs[t as usize].area >= blobs[r as usize].area { (t, r) } else { (r, t) };
+                            parent[gone as usize] = keep;
+                            let other = blobs[gone as usize];
+                            blobs[keep as usize].merge(&other);
+                            keep
+                        }
+                        _ => r,
+                    });
+                }
+            }
+            let (x, y) = ((p % stride - 1) as u32, (p / stride - 1) as u32);
+            let run = Blob::run(x, y, len as u32);
+            let fill = match (dead, target) {
+                (true, t) => {
+                    if let Some(t) = t {
+                        parent[t as usize] = DEAD;
+                    }
                     DEAD
-                } else {
+                }
+                (false, Some(t)) => {
+                    blobs[t as usize].merge(&run);
+                    t
+                }
+                (false, None) => {
                     let node = parent.len() as u32;
                     parent.push(node);
-                    let (x, y) = xy();
-                    blobs.push(Blob::new(x, y, raw[y as usize * w + x as usize], smooth[y as usize * w + x as usize]));
+                    blobs.push(run);
                     alive.push((node, 0));
                     node
-                };
-                continue;
-            }
-            // The distinct live roots around p (at most 4 with 8-connectivity).
-            let (mut roots, mut count, mut dead) = ([0u32; 8], 0, false);
-            for l in around {
-                match l {
-                    NONE => {}
-                    DEAD => dead = true,
-                    l => match find(&mut parent, l) {
-                        None => dead = true,
-                        Some(r) if !roots[..count].contains(&r) => {
-                            roots[count] = r;
-                            count += 1;
-                        }
-                        Some(_) => {}
-                    },
                 }
+            };
+            if fill != DEAD && blobs[fill as usize].size().into_iter().any(|s| s > max_side) {
+                parent[fill as usize] = DEAD;
             }
-            let roots = &roots[..count];
-            if dead {
-                label[p] = DEAD;
-                for &r in roots {
-                    parent[r as usize] = DEAD;
-                }
-                continue;
-            }
-            let Some(&first) = roots.first() else { continue };
-            let keep = roots
-                .iter()
-                .copied()
-                .fold(first, |a, r| if blobs[r as usize].area > blobs[a as usize].area { r } else { a });
-            for &r in roots.iter().filter(|&&r| r != keep) {
-                parent[r as usize] = keep;
-                let other = blobs[r as usize];
-                blobs[keep as usize].merge(&other);
-            }
-            let blob = &mut blobs[keep as usize];
-            let (x, y) = xy();
-            blob.add(x, y, raw[y as usize * w + x as usize], smooth[y as usize * w + x as usize]);
-            label[p] = keep;
-            let [sw, sh] = blob.size();
-            if sw > max_side || sh > max_side {
-                parent[keep as usize] = DEAD;
-            }
+            label[p..p + len].fill(fill);
         }
         alive.retain_mut(|(node, seen)| {
             if parent[*node as usize] != *node {
@@ -270,8 +267,11 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
             true
         });
     }
+    PH[2].fetch_add(t0.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
+    let t0 = std::time::Instant::now();
     let kept = suppress_duplicates(found, &mut label, stride, h + 2);
     tracing::debug!(candidates = kept.len());
+    PH[3].fetch_add(t0.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
     kept
 }
 
@@ -287,12 +287,6 @@ fn score(blob: &Blob, smooth: &[u8], w: usize, h: usize, level: u8, params: &Can
         (x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h).then(|| smooth[y as usize * w + x as usize] as f32)
     };
     let inside = at(x0, y0)?;
-    let inside = match CENTRE_MODE.load(std::sync::atomic::Ordering::Relaxed) {
-        0 => inside,
-        1 => blob.sum_v as f32 / blob.area as f32,
-        2 => blob.sum_s as f32 / blob.area as f32,
-        _ => inside.min(blob.sum_v as f32 / blob.area as f32),
-    };
     // Eq. (1): p0 +- s_x x and p0 +- s_y y; probes outside the image are left out.
     let (dx, dy) = (sw as i64, sh as i64);
     let (sum, n) = [(dx, 0), (-dx, 0), (0, dy), (0, -dy)]

@@ -30,7 +30,7 @@ pub struct DetectorParams {
 impl Default for DetectorParams {
     fn default() -> Self {
         Self {
-            candidates: CandidateParams::default(),
+            candidates: CandidateParams::high_recall(),
             hash: HashParams::default(),
             refine: RefineParams::default(),
             max_candidates: 400,
@@ -144,7 +144,16 @@ impl Detector {
         let points: Vec<Point2<f64>> = holes.iter().map(|(c, _)| lens.undistort(c.centre)).collect();
         let classes: Vec<Class> = holes.iter().map(|(_, class)| *class).collect();
         let sizes: Vec<f64> = holes.iter().map(|(c, _)| c.size[0].max(c.size[1]) as f64).collect();
-        let found = find_outlet(&self.table, &points, &classes, &sizes, &self.params.hash);
+        // What the image and the camera tell the hashing: the frame's size, and
+        // with a camera the scales an outlet 15-70 cm away can have (sqrt of the
+        // Jacobian's determinant; down to cos 60 deg of foreshortening).
+        let mut hash = self.params.hash.clone();
+        hash.image_size = Some([grey.width() as f64, grey.height() as f64]);
+        if let Some(c) = camera {
+            let f = (c.fx * c.fy).sqrt();
+            hash.scale_range = Some([f / 700.0 * 0.5f64.sqrt(), f / 150.0]);
+        }
+        let found = find_outlet(&self.table, &points, &classes, &sizes, &hash);
         times.hash = ms_since(t);
 
         let t = Instant::now();

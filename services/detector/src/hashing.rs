@@ -8,31 +8,38 @@
 //! coordinates. Buckets are also keyed by the classes of the three basis holes and
 //! of the hashed hole, so a vote needs class agreement as well as position.
 //!
-//! Online, [`find_outlet`] builds bases from each candidate and pairs of its
-//! nearest neighbours (enumerated, so the result is reproducible), hashes the
-//! candidates around it and counts the votes of each model basis. Every model basis
-//! with enough votes gives an affine transform, scored with the paper's equation
-//! (2): a template hole counts when a candidate of its class lies within MaxDist of
-//! its projection (each candidate used once).
+//! Online, [`find_outlet`] takes each candidate with pairs of its nearest
+//! neighbours as bases (enumerated, not drawn: the result is reproducible; each
+//! triangle once, from its widest corner), hashes the candidates around it and
+//! counts the votes of each model basis. Every model basis with enough votes gives
+//! an affine transform, scored with the paper's equation (2): a template hole
+//! counts when a candidate of its class lies within MaxDist of its projection,
+//! each candidate used once.
 //!
 //! Beyond the paper:
-//! - camera views are perspective, not affine: a hypothesis with enough matches is
-//!   refitted (least-squares affine for 4 matches, normalised DLT homography from 5)
-//!   to its matches, re-projected and re-scored until the matches stop changing;
+//! - camera views are perspective, not affine: a hypothesis with 4 matches is
+//!   refitted to them (least squares: affine below 6 matches, normalised DLT
+//!   homography from 6), re-projected and re-scored until its matches settle;
 //! - MaxDist and the size check scale with the hole's predicted apparent size;
-//! - guards against false alarms: orientation-preserving (the camera sees the
-//!   front), not degenerate, at most ~63 degrees off-axis, bounded perspective,
-//!   candidate sizes that agree with the transform's scale, small residuals;
-//! - a result is reported only when it is unambiguous: any other interpretation of
-//!   the candidates must score clearly lower (see [`HashParams::rival_margin`]).
+//! - guards: orientation-preserving (the camera sees the front, never a mirror
+//!   image), not degenerate, at most 60 degrees off-axis, bounded perspective,
+//!   candidate sizes that agree with the transform's scale;
+//! - verification: every match must be predicted by a fit to the others
+//!   (leave-one-out), and the result must be unlikely as a coincidence among the
+//!   candidates around it (a-contrario number of false alarms, [`HashParams::max_nfa`]):
+//!   4 of 6 holes suffice among few candidates, among 150 random ones they do not;
+//! - the answer is "none" when another interpretation of the candidates (another
+//!   place, or the same holes relabelled, e.g. turned 180 degrees) scores as well.
+//!
+//! A false alarm costs far more than a miss: every doubt gives "none".
 
 use crate::Class;
 use nalgebra::{Matrix2, Matrix3, Point2, SMatrix, SVector, Vector2};
 use std::collections::HashSet;
 
 /// Most holes a template may have. The table holds every ordered triple of holes,
-/// each hashing all other holes, so its size grows as n^4 (24 holes: 2.3 million
-/// entries at the default spread).
+/// each hashing all other holes, so its size grows as n^4 (24 holes: about a
+/// million entries).
 pub const MAX_TEMPLATE_HOLES: usize = 24;
 
 /// Most candidates looked at; those beyond (in input order) are ignored. The
@@ -46,7 +53,8 @@ const NONE: u32 = u32::MAX;
 const SIGNATURES: usize = 8;
 
 /// Parameters of geometric hashing (paper, section III.C; values of the original
-/// code in `ORIGINAL.md` where the paper has none).
+/// code, `ORIGINAL.md`, where the paper has none). Figures quoted are from
+/// `tests/hashing.rs`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HashParams {
     /// Bins per axis of the affine-coordinate grid (original: 30).
@@ -55,80 +63,105 @@ pub struct HashParams {
     /// not vote (original: 5).
     pub range: f64,
     /// Each template hole is filed in every bin within this many bins of its
-    /// affine coordinates (0.5: the 2x2 block nearest to it, so a candidate up to
-    /// half a bin, 0.17, off still votes), for noise and perspective, which bend
-    /// the affine coordinates of far holes. Votes only choose what to score.
+    /// affine coordinates: 0.5 is the 2x2 block nearest to it, so a candidate half
+    /// a bin (0.17) off still votes despite noise and perspective. A 3x3 block
+    /// found no more outlets and cost twice the votes. Votes only choose what to
+    /// score.
     pub vote_tolerance: f64,
     /// A model basis's angle must be at least this far from 0 and pi, radians
     /// (original: 0.5).
     pub min_basis_angle: f64,
     /// An online basis's angle must be at least this far from 0 and pi, radians.
-    /// Smaller than the model's: a view at 60 degrees squeezes a 0.5 rad angle to
-    /// about 0.26 rad.
+    /// Smaller than the model's: a view 60 degrees off-axis squeezes 0.5 rad to
+    /// about 0.26.
     pub min_online_angle: f64,
-    /// Online bases are the candidate with every pair of its this many nearest
-    /// neighbours (the paper draws random pairs "in the proximity"). 6 gives 15
-    /// bases per candidate and includes a hole's two receptacle neighbours even
-    /// with clutter around.
+    /// Online bases are each candidate with every pair of its this many nearest
+    /// neighbours of compatible size (the paper draws random pairs "in the
+    /// proximity", up to 10 tries). 4 (6 pairs) found as many outlets among 150
+    /// candidates as 6 (15 pairs), at a third of the time for `2x2`.
     pub neighbours: usize,
     /// Votes a model basis needs to be scored. `None`: min score - 4, at least 1
-    /// (the three basis holes count, and one further hole may miss its bin under
-    /// perspective): 1 for `2x1` (so 4 of 6 holes are found), 4 for `2x2`.
+    /// (the three basis holes count, and one further hole may miss its bin): 1
+    /// for `2x1`, so 4 of 6 holes are enough, and 4 for `2x2`. Original: 3.
     pub min_votes: Option<usize>,
     /// MaxDist of equation (2) as a fraction of the hole's predicted apparent size
-    /// (template hole size times the transform's local scale). The paper's fixed
-    /// 5 px was for one camera distance; 0.6 x ~7 mm = 4.2 mm stays under a third of
-    /// the 12.7 mm slot pitch, so neighbouring holes never compete.
+    /// (`hole_size` times the transform's local scale), to reach holes that an
+    /// affine first guess misplaces under perspective. The paper's fixed 5 px held
+    /// for one camera distance; 0.6 x 7 mm = 4.2 mm is a third of the 12.7 mm slot
+    /// pitch, so neighbouring holes never compete.
     pub max_dist_ratio: f64,
     /// MaxDist is never below this (pixels): position noise of tiny holes.
     pub min_max_dist_px: f64,
-    /// Apparent size of a template hole, template units (mm): what `sizes` measures
-    /// on the image, divided by the scale. 7 mm: the larger side of a hole's
-    /// bounding box is 7.1-8.7 mm for the slots and 5 mm for the ground hole.
+    /// Apparent size of a template hole, template units (mm): what `sizes`
+    /// measures on the image, over the scale. 7 mm: the larger side of a hole's
+    /// bounding box is 7.1-8.7 mm for the slots, 5 mm for the ground hole.
     pub hole_size: f64,
     /// A candidate's size may differ from the predicted hole size by this factor
-    /// either way. Also bounds each candidate's neighbourhood (the outlet spans
-    /// template extent / hole size hole sizes, times this).
+    /// either way: slots and ground holes, foreshortening up to 60 degrees, and
+    /// components cut at different threshold levels. Also bounds each candidate's
+    /// neighbourhood: the outlet's extent at the largest scale its size allows.
     pub size_tolerance: f64,
     /// The minimum score S is this fraction of the template's holes, rounded up:
     /// 2/3 gives the paper's 4 of 6 for `2x1` and 8 of 12 for `2x2`. 8 is also two
-    /// more than one duplex column (6 holes) can give, so a `2x1` outlet or half a
-    /// `2x2` is never taken for a `2x2`.
+    /// more than one duplex column (6 holes) can give, so a `2x1` outlet, or half
+    /// a `2x2`, is never taken for a `2x2`.
     pub min_score_fraction: f64,
     /// The minimum score is never below this, nor below 4 (three holes fix the
     /// affine transform; at least one more must confirm it).
     pub min_score_floor: usize,
     /// Smallest ratio of the transform's singular values at any hole: cos of the
-    /// largest off-axis angle. 0.45 = 63 degrees (the paper's views are within 40).
+    /// largest off-axis angle, 0.5 = 60 degrees (the paper's views are within 40;
+    /// a chance 5-of-6 among clutter was at 0.46).
     pub min_axis_ratio: f64,
+    /// Local scales (sqrt of the Jacobian's determinant, pixels per template unit)
+    /// an outlet may have, when the caller knows them: focal length over the
+    /// working distances, e.g. 525 px / (200..500 mm) = 1.05..2.6 px/mm for the
+    /// paper's 20-50 cm, with a margin. `None`: any scale.
+    pub scale_range: Option<[f64; 2]>,
+    /// Image width and height (pixels), when known: every hole must be predicted
+    /// inside the image (an outlet partly out of view cannot be checked), and
+    /// clutter density is measured in the image only. `None`: no such checks.
+    pub image_size: Option<[f64; 2]>,
     /// Largest ratio of the local scales (sqrt of the Jacobian's determinant) of
-    /// two holes. A 2x2 outlet 10 cm wide at 20 cm seen 60 degrees off-axis: 1.9.
+    /// two holes: the perspective allowed. A 2x2 outlet at 20 cm seen 60 degrees
+    /// off-axis gives 1.65; 40 degrees 1.46.
     pub max_scale_variation: f64,
-    /// Each match must be predicted by a fit to the other matches within this
-    /// fraction of its predicted size (leave-one-out).
+    /// Each match must be predicted by a least-squares fit to the other matches
+    /// within this fraction of its predicted size (leave-one-out); the worst
+    /// offender is dropped until all are. 0.3 dropped true holes of outlets 40
+    /// degrees off-axis (an affine fit of 5 holes misses the perspective).
     pub max_loo_ratio: f64,
-    /// A hole matched within its leave-one-out error r is as good as one within
-    /// this (pixels): candidate centres are no more precise.
+    /// A match closer than this to its leave-one-out prediction counts as this
+    /// close (pixels): candidate centres are no more precise.
     pub position_precision_px: f64,
-    /// Largest expected number of chance hypotheses at least as good as the one
-    /// reported (number of false alarms, a-contrario as in Moisan and Stival's
-    /// AC-RANSAC), given the density of the unused candidates around it. Lets 4 of
-    /// 6 holes through among few candidates and asks for more, and tighter, among
-    /// many: with 150 random candidates 4-of-6 coincidences are common.
+    /// Largest number of false alarms (NFA, a-contrario as in Moisan and Stival's
+    /// AC-RANSAC): the expected number of hypotheses as good as the reported one
+    /// if the candidates it does not use were uniform clutter of their density
+    /// around it, over all hypotheses tried. Three matches are free (they fix the
+    /// transform); each further one counts with the probability that clutter falls
+    /// within its leave-one-out error. Measured on `2x1` (0.5 px noise; clutter of
+    /// random power/ground class, 4-20 px, anywhere in 640x480):
+    ///
+    /// | max_nfa | 4 of 6 holes alone found | false alarms, 30-150 clutter candidates |
+    /// |---|---|---|
+    /// | 1e-3 | 89 / 140 | 1 / 500 |
+    /// | 1e-2 | 140 / 140 | 2 / 500 (at 150 candidates 8 / 2000, at 80 1 / 2000) |
+    /// | 1e-1 | 140 / 140 | 11 / 500 |
+    ///
+    /// `2x2` at 1e-2: 0 / 500 (3 / 2000 at 150 candidates).
     pub max_nfa: f64,
-    /// Refits (affine, then homography) of a hypothesis, each followed by a re-score.
+    /// Refits of a hypothesis, each followed by a re-score.
     pub refine_iterations: usize,
     /// Matches needed to fit a homography (8 unknowns); fewer get a least-squares
-    /// affine fit (6 unknowns). 6 leaves 4 redundant equations; with 5, a
-    /// homography bends to fit almost any fifth point.
+    /// affine fit (6 unknowns). 6 leaves 4 redundant equations; a homography
+    /// through 5 points bends to fit almost any fifth, and its extrapolation to
+    /// missing holes was off by up to 4.5 px.
     pub min_homography_matches: usize,
-    /// Another interpretation of the candidates (sharing fewer than 3 hole-candidate
-    /// pairs with the best) must score at least this much lower, or the answer is
-    /// "none". An interpretation that only re-labels the best's own candidates
-    /// (e.g. the outlet turned 180 degrees) must merely score lower. With 150
-    /// random candidates hundreds of 4-of-6 coincidences appear and some reach 5,
-    /// while real outlets usually give all 6: a margin of 2 keeps the coincidences
-    /// from being reported.
+    /// Another verified interpretation of the candidates (sharing fewer than 3
+    /// hole-candidate pairs with the best: another place, or the best's own
+    /// candidates relabelled, e.g. turned 180 degrees) must score at least this
+    /// much lower, or the answer is "none". Relabellings of the best's own
+    /// candidates need only score lower: the best explains more of the same.
     pub rival_margin: usize,
 }
 
@@ -149,7 +182,9 @@ impl Default for HashParams {
             min_score_fraction: 2.0 / 3.0,
             min_score_floor: 4,
             min_axis_ratio: 0.5,
-            max_scale_variation: 2.5,
+            scale_range: None,
+            image_size: None,
+            max_scale_variation: 2.0,
             max_loo_ratio: 0.4,
             position_precision_px: 0.5,
             max_nfa: 1e-2,
@@ -286,7 +321,7 @@ impl HashTable {
         table.centroid = Point2::from(table.points.iter().map(|p| p.coords).sum::<Vector2<f64>>() / n as f64);
 
         let sin_min = finite_or(params.min_basis_angle, 0.5).clamp(0.0, std::f64::consts::FRAC_PI_2).sin().max(1e-6);
-        let tolerance = finite_or(params.vote_tolerance, 0.5).clamp(0.0, bins as f64);
+        let tolerance = finite_or(params.vote_tolerance, 0.5).clamp(0.0, 3.0);
         let class: Vec<Option<u8>> = table.classes.iter().map(|&c| class_index(c)).collect();
         let mut entries: Vec<(u32, u32)> = Vec::new();
         for (o, po) in table.points.iter().enumerate() {
@@ -503,6 +538,8 @@ struct Accepted {
     rms_px: f64,
     /// See [`Search::log_nfa`].
     log_nfa: f64,
+    /// Every hole predicted inside the image (true when its size is unknown).
+    in_view: bool,
     transform: Matrix3<f64>,
     projection: Projection,
     /// Offset of its assignment in `Search::accepted_assignments`.
@@ -558,7 +595,9 @@ impl<'a> Search<'a> {
         let (mut smin, mut smax) = (f64::INFINITY, 0.0f64);
         for (j, h) in self.table.points.iter().enumerate() {
             let w = t[(2, 0)] * h.x + t[(2, 1)] * h.y + t[(2, 2)];
-            if !(w > 1e-12) {
+            // Comparisons are written so that NaN fails them.
+            let in_front = w > 1e-12;
+            if !in_front {
                 return None;
             }
             let u = (t[(0, 0)] * h.x + t[(0, 1)] * h.y + t[(0, 2)]) / w;
@@ -570,7 +609,8 @@ impl<'a> Search<'a> {
                 (t[(1, 1)] - v * t[(2, 1)]) / w,
             );
             let det = jac.determinant();
-            if !(det > 0.0 && u.is_finite() && v.is_finite()) || !(axis_ratio(&jac) >= p.min_axis_ratio) {
+            let plausible = det > 0.0 && u.is_finite() && v.is_finite() && axis_ratio(&jac) >= p.min_axis_ratio;
+            if !plausible {
                 return None;
             }
             let scale = det.sqrt();
@@ -579,7 +619,13 @@ impl<'a> Search<'a> {
             out.pos[j] = Point2::new(u, v);
             out.size[j] = p.hole_size * scale;
         }
-        if !(smax <= p.max_scale_variation * smin) {
+        let bounded_perspective = smax <= p.max_scale_variation * smin;
+        if !bounded_perspective {
+            return None;
+        }
+        if let Some([lo, hi]) = p.scale_range
+            && !(smin >= lo && smax <= hi)
+        {
             return None;
         }
         Some(out)
@@ -594,17 +640,22 @@ impl<'a> Search<'a> {
         candidate <= predicted * tol && candidate * tol >= predicted
     }
 
-    /// Equation (2) with sizes: per template hole in order, the nearest unused
-    /// candidate of its class within MaxDist whose size agrees.
-    fn score(&mut self, proj: &Projection, assignment: &mut Assignment) -> usize {
+    /// A fresh mark for `used`.
+    fn next_stamp(&mut self) {
         self.stamp = self.stamp.wrapping_add(1);
         if self.stamp == 0 {
             self.used.fill(0);
             self.stamp = 1;
         }
+    }
+
+    /// Equation (2) with sizes: per template hole in order, the nearest unused
+    /// candidate of its class within MaxDist whose size agrees.
+    fn score(&mut self, proj: &Projection, assignment: &mut Assignment) -> usize {
+        self.next_stamp();
         let mut score = 0;
-        for j in 0..self.holes {
-            assignment[j] = NONE;
+        for (j, matched) in assignment.iter_mut().enumerate().take(self.holes) {
+            *matched = NONE;
             let class = self.template_class[j];
             if class == u8::MAX {
                 continue;
@@ -630,7 +681,7 @@ impl<'a> Search<'a> {
             }
             if best != NONE {
                 self.used[best as usize] = self.stamp;
-                assignment[j] = best;
+                *matched = best;
                 score += 1;
             }
         }
@@ -674,7 +725,14 @@ impl<'a> Search<'a> {
         let (h0, h1, h2) = (self.cand.pos[online[0]], self.cand.pos[online[1]], self.cand.pos[online[2]]);
         let linear = Matrix2::from_columns(&[h1 - h0, h2 - h0]) * table.basis_inverse[model];
         let det = linear.determinant();
-        if !(det > 0.0) || !(axis_ratio(&linear) >= self.params.min_axis_ratio) {
+        // A mirror (det < 0), degenerate or too oblique: no view of the front.
+        let plausible = det > 0.0 && axis_ratio(&linear) >= self.params.min_axis_ratio;
+        if !plausible {
+            return;
+        }
+        if let Some([lo, hi]) = self.params.scale_range
+            && !(det.sqrt() >= lo && det.sqrt() <= hi)
+        {
             return;
         }
         // The basis candidates' sizes must agree with the scale they imply.
@@ -759,7 +817,7 @@ impl<'a> Search<'a> {
                 errors[j] = predicted.map_or(f64::INFINITY, |p| (p - self.cand.pos[i as usize]).norm());
                 let ratio = errors[j] / projection.size[j];
                 // NaN is the worst of all.
-                if !(ratio <= worst.0) {
+                if ratio.is_nan() || ratio > worst.0 {
                     worst = (ratio, j as u32);
                 }
             }
@@ -768,6 +826,9 @@ impl<'a> Search<'a> {
             }
             if worst.0 <= self.params.max_loo_ratio {
                 break;
+            }
+            if worst.1 == NONE {
+                return; // only NaN limits: nothing to drop
             }
             assignment[worst.1 as usize] = NONE;
             if n - 1 < self.min_score {
@@ -782,13 +843,20 @@ impl<'a> Search<'a> {
         for (j, &i) in assignment[..self.holes].iter().enumerate() {
             if i != NONE {
                 let d = (self.cand.pos[i as usize] - projection.pos[j]).norm();
-                if !(d < self.max_dist(projection.size[j])) {
+                let near = d < self.max_dist(projection.size[j]);
+                if !near {
                     return;
                 }
                 sum += d * d;
                 score += 1;
             }
         }
+        // A hole predicted outside the image cannot be checked: an outlet partly
+        // out of view is not reported, but it still rivals other interpretations.
+        let in_view = self.params.image_size.is_none_or(|[width, height]| {
+            let inside = |p: &Point2<f64>| (-0.5..=width - 0.5).contains(&p.x) && (-0.5..=height - 0.5).contains(&p.y);
+            projection.pos[..self.holes].iter().all(inside)
+        });
         let key = assignment_hash(&assignment[..self.holes]);
         if self.accepted.iter().any(|a| a.key == key) {
             return;
@@ -797,7 +865,7 @@ impl<'a> Search<'a> {
         self.accepted_assignments.extend_from_slice(&assignment[..self.holes]);
         let rms_px = (sum / score as f64).sqrt();
         let log_nfa = self.log_nfa(&assignment, &projection, &errors);
-        self.accepted.push(Accepted { score, rms_px, log_nfa, transform, projection, start, key });
+        self.accepted.push(Accepted { score, rms_px, log_nfa, in_view, transform, projection, start, key });
     }
 
     /// ln of the expected number of chance hypotheses as good as this one, per
@@ -816,9 +884,16 @@ impl<'a> Search<'a> {
             spread = spread.max((p - centre).norm());
             largest = largest.max(size);
         }
-        let radius = 2.0 * spread + largest;
-        let area = std::f64::consts::PI * radius * radius;
-        self.stamp = self.stamp.wrapping_add(1).max(1);
+        // The window around the outlet, within the image when its size is known:
+        // outside it there can be no clutter to count.
+        let reach = 2.0 * spread + largest;
+        let (mut lo, mut hi) = (centre - Vector2::repeat(reach), centre + Vector2::repeat(reach));
+        if let Some([width, height]) = self.params.image_size {
+            lo = Point2::new(lo.x.max(-0.5), lo.y.max(-0.5));
+            hi = Point2::new(hi.x.min(width - 0.5), hi.y.min(height - 0.5));
+        }
+        let area = (hi.x - lo.x).max(largest) * (hi.y - lo.y).max(largest);
+        self.next_stamp();
         for &i in &assignment[..n] {
             if i != NONE {
                 self.used[i as usize] = self.stamp;
@@ -836,12 +911,13 @@ impl<'a> Search<'a> {
                 if self.used[i] != self.stamp
                     && self.cand.class[i] == class
                     && self.size_agrees(self.cand.size[i], size)
-                    && (self.cand.pos[i] - centre).norm_squared() <= radius * radius
+                    && (lo.x..=hi.x).contains(&self.cand.pos[i].x)
+                    && (lo.y..=hi.y).contains(&self.cand.pos[i].y)
                 {
                     count += 1;
                 }
             }
-            let r = errors[j].max(self.params.position_precision_px);
+            let r = errors[j].max(self.params.position_precision_px).max(1e-6);
             alphas[m] = ((count + 1) as f64 / area * std::f64::consts::PI * r * r).min(1.0);
             m += 1;
         }
@@ -863,13 +939,13 @@ impl<'a> Search<'a> {
         &self.accepted_assignments[s..s + self.holes]
     }
 
-    /// The best significant hypothesis, if no other significant interpretation
-    /// rivals it.
+    /// The best significant hypothesis, if no other verified interpretation (a
+    /// coincidence counts too) rivals it.
     fn decide(&self) -> Option<usize> {
         let log_tests = (self.tests.max(1) as f64).ln();
         let limit = self.params.max_nfa.ln();
-        let significant = |k: &usize| self.accepted[*k].log_nfa + log_tests <= limit;
-        let best = (0..self.accepted.len()).filter(significant).min_by(|&x, &y| {
+        let eligible = |k: &usize| self.accepted[*k].in_view && self.accepted[*k].log_nfa + log_tests <= limit;
+        let best = (0..self.accepted.len()).filter(eligible).min_by(|&x, &y| {
             let (a, b) = (&self.accepted[x], &self.accepted[y]);
             b.score.cmp(&a.score).then(a.rms_px.total_cmp(&b.rms_px))
         })?;
@@ -968,7 +1044,8 @@ fn fit_homography(src: &[Point2<f64>], dst: &[Point2<f64>], centre: Point2<f64>)
     let normalised = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], 1.0);
     let t = denormalise(&normalised, cs, ss, cd, sd);
     let w = t[(2, 0)] * centre.x + t[(2, 1)] * centre.y + t[(2, 2)];
-    if !(w.abs() > 1e-12) {
+    let finite_centre = w.abs() > 1e-12;
+    if !finite_centre {
         return None;
     }
     let t = t / w;
@@ -1082,7 +1159,8 @@ pub fn find_outlet(
 ) -> Option<OutletMatch> {
     let _span = tracing::debug_span!("hashing").entered();
     let holes = table.holes();
-    if table.bases.is_empty() || !(params.hole_size > 0.0) || !(params.size_tolerance >= 1.0) {
+    let usable = !table.bases.is_empty() && params.hole_size > 0.0 && params.size_tolerance >= 1.0;
+    if !usable {
         return None;
     }
     let cand = Candidates::new(points, classes, sizes);
@@ -1177,26 +1255,12 @@ pub fn find_outlet(
     }
 
     let found = search.decide();
-    if std::env::var_os("HASH_DEBUG").is_some() {
-        eprintln!(
-            "m {} hyp {} refined {} accepted {} found {:?} tests {}",
-            m,
-            search.hypotheses,
-            search.tried.len(),
-            search.accepted.len(),
-            found,
-            search.tests
-        );
-        for (k, a) in search.accepted.iter().enumerate() {
-            let nfa = a.log_nfa + (search.tests.max(1) as f64).ln();
-            eprintln!("  #{k} score {} rms {:.2} lognfa {:.1} {:?}", a.score, a.rms_px, nfa, search.assignment_of(k));
-        }
-    }
     tracing::debug!(
         candidates = m,
         hypotheses = search.hypotheses,
+        tests = search.tests,
         refined = search.tried.len(),
-        accepted = search.accepted.len(),
+        verified = search.accepted.len(),
         found = found.is_some(),
         "geometric hashing"
     );
@@ -1212,4 +1276,60 @@ pub fn find_outlet(
         assignment,
         projected: best.projection.pos[..holes].to_vec(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn minimum_scores_are_two_thirds_of_the_holes() {
+        let p = HashParams::default();
+        assert_eq!((p.min_score(6), p.min_votes(6)), (4, 1));
+        assert_eq!((p.min_score(12), p.min_votes(12)), (8, 4));
+        assert_eq!(p.min_score(4), 4);
+    }
+
+    #[test]
+    fn axis_ratio_is_the_ratio_of_singular_values() {
+        let r = |a: f64| Matrix2::new(a.cos(), -a.sin(), a.sin(), a.cos());
+        let m = r(0.3) * Matrix2::new(4.0, 0.0, 0.0, 2.0) * r(-1.1);
+        assert!((axis_ratio(&m) - 0.5).abs() < 1e-12);
+        assert!((axis_ratio(&Matrix2::new(3.0, 0.0, 0.0, -3.0)) - 1.0).abs() < 1e-12);
+        assert_eq!(axis_ratio(&Matrix2::zeros()), 0.0);
+    }
+
+    #[test]
+    fn fits_recover_exact_transforms() {
+        let src: Vec<Point2<f64>> = [(0.0, 0.0), (12.7, 0.0), (6.35, 11.9), (0.0, 38.1), (12.7, 38.1), (6.35, 50.0)]
+            .iter()
+            .map(|&(x, y)| Point2::new(x, y))
+            .collect();
+        let h = Matrix3::new(3.1, -0.4, 320.0, 0.7, 2.6, 200.0, 0.002, -0.001, 1.0);
+        let dst: Vec<Point2<f64>> = src.iter().map(|&p| apply(&h, p)).collect();
+        let fitted = fit_homography(&src, &dst, Point2::new(6.0, 20.0)).expect("homography");
+        for (s, d) in src.iter().zip(&dst) {
+            assert!((apply(&fitted, *s) - d).norm() < 1e-9);
+        }
+        let a = Matrix3::new(3.1, -0.4, 320.0, 0.7, 2.6, 200.0, 0.0, 0.0, 1.0);
+        let dst: Vec<Point2<f64>> = src.iter().map(|&p| apply(&a, p)).collect();
+        let fitted = fit_affine(&src[..3], &dst[..3]).expect("affine");
+        assert!((fitted - a).norm() < 1e-9);
+        // Degenerate: too few or coincident points.
+        assert!(fit_homography(&src[..3], &dst[..3], Point2::origin()).is_none());
+        assert!(fit_affine(&[Point2::origin(); 3], &dst[..3]).is_none());
+    }
+
+    #[test]
+    fn a_triangle_is_based_at_its_widest_corner() {
+        let pos = [Point2::new(0.0, 0.0), Point2::new(10.0, 0.0), Point2::new(5.0, 1.0), Point2::new(20.0, 0.0)];
+        assert_eq!(widest_corner(&pos, [0, 1, 2], 0.1), Some([2, 0, 1]));
+        assert_eq!(widest_corner(&pos, [0, 1, 3], 0.1), None);
+    }
+
+    #[test]
+    fn binomials() {
+        assert!((ln_binomial(9, 3) - 84f64.ln()).abs() < 1e-12);
+        assert_eq!(ln_binomial(3, 0), 0.0);
+    }
 }

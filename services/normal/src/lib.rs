@@ -18,6 +18,7 @@
 //! ```
 
 mod fit;
+mod moments;
 mod params;
 mod rng;
 

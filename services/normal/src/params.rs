@@ -164,7 +164,7 @@ impl Default for PlaneParams {
             min_inlier_fraction: 0.2,
             min_points: 20,
             roi: None,
-            seed: 0x5EED_0F_A11,
+            seed: 0x5EED_0F0A,
         }
     }
 }

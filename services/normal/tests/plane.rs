@@ -367,7 +367,8 @@ fn covariance_check(wall: Wall, params: &PlaneParams, trials: u64) -> ([f64; 3],
     let mut samples = Vec::new();
     let mut predicted = [0.0; 3];
     for seed in 0..trials {
-        let fit = fit_wall_plane(&wall.cloud(1000 + seed), params).expect("plane");
+        let fit =
+            fit_wall_plane(&wall.cloud(1000 + seed), params).unwrap_or_else(|e| panic!("{wall:?} seed {seed}: {e}"));
         let dn = fit.normal.into_inner() - n_true;
         samples.push([dn.dot(&e1), dn.dot(&e2), fit.distance_m - wall.distance_m]);
         // The fit's own tangent basis is within a milliradian of the truth's.

@@ -53,6 +53,10 @@ struct Outcome {
     distance_m: f64,
     /// Hole position errors (mm) per pose mode, for correct detections.
     pose_mm: PoseErrors,
+    /// Of the true holes: how many have a candidate on them, and how many of
+    /// those the descriptor classed right (where a miss was lost).
+    holes_with_candidate: usize,
+    holes_classified: usize,
 }
 
 /// Hole position errors (mm) of each pose mode, and the Cramér-Rao bounds (RMS
@@ -177,6 +181,23 @@ fn evaluate_one(
     };
     let found = report.detection.is_some();
     let correct = positive && found && errors_px.iter().all(|e| *e <= args.tolerance_px);
+    let (mut holes_with_candidate, mut holes_classified) = (0, 0);
+    for hole in &truth.holes {
+        let p = nalgebra::Point2::new(hole.pixel[0], hole.pixel[1]);
+        let nearest = report
+            .candidates
+            .iter()
+            .map(|(c, class)| ((c.centre - p).norm(), *class))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        if let Some((d, class)) = nearest
+            && d < 3.0
+        {
+            holes_with_candidate += 1;
+            if class == outlet_detector::Class::from(hole.kind) {
+                holes_classified += 1;
+            }
+        }
+    }
     let pose_mm = match (&report.detection, correct) {
         (Some(d), true) => pose_errors(d, detector, camera, &frame, &scene, index, &errors_px),
         _ => PoseErrors::default(),
@@ -199,6 +220,8 @@ fn evaluate_one(
         off_axis_deg: view.off_axis_deg,
         distance_m: view.distance_m,
         pose_mm,
+        holes_with_candidate,
+        holes_classified,
     })
 }
 
@@ -308,6 +331,19 @@ fn table(scenarios: &[&str], outcomes: &[Outcome], args: &EvalArgs, camera: &out
             fmt(percentile(&errors, 0.95)),
         );
     }
+    // Where the misses were lost: the first stage that fell below the paper's
+    // score S (4 of 6, 8 of 12).
+    let misses: Vec<&Outcome> = outcomes.iter().filter(|o| o.positive && !o.correct).collect();
+    let needed = |o: &Outcome| if o.scenario.contains("2x2") { 8 } else { 4 };
+    let no_candidates = misses.iter().filter(|o| o.holes_with_candidate < needed(o)).count();
+    let misclassified =
+        misses.iter().filter(|o| o.holes_with_candidate >= needed(o) && o.holes_classified < needed(o)).count();
+    let _ = writeln!(
+        s,
+        "\nMisses ({}): {no_candidates} with too few holes among the candidates, {misclassified} with too few classed right, {} lost in hashing or verification.",
+        misses.len(),
+        misses.len() - no_candidates - misclassified
+    );
     let _ = writeln!(s, "\n{}", pose_table(outcomes));
     let n = outcomes.len().max(1) as f64;
     let _ = writeln!(
