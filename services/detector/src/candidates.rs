@@ -61,7 +61,6 @@ impl CandidateParams {
 /// Candidates closer than this (pixels) are one blob seen at several levels.
 pub const DUPLICATE_RADIUS_PX: f64 = 2.0;
 
-pub static PH: [std::sync::atomic::AtomicU64; 4] = [const { std::sync::atomic::AtomicU64::new(0) }; 4];
 /// Label of a pixel not yet added.
 const NONE: u32 = u32::MAX;
 /// Label of a pixel (or parent of a root) in a component too large to be a hole.
@@ -109,23 +108,74 @@ impl Blob {
     }
 }
 
-/// Root of node `n`, or `None` if its component is dead (path halving).
-#[inline]
-fn find(parent: &mut [u32], mut n: u32) -> Option<u32> {
-    loop {
-        let p = parent[n as usize];
-        if p == n {
-            return Some(n);
+/// Components as a union-find over nodes (one per component start), with the blob
+/// of each root. A root whose parent is `DEAD` has outgrown `max_side`, and so has
+/// everything merged into it.
+struct Forest {
+    parent: Vec<u32>,
+    blobs: Vec<Blob>,
+    max_side: u32,
+}
+
+impl Forest {
+    /// Root of node `n`, or `None` if its component is dead (path halving).
+    fn find(&mut self, mut n: u32) -> Option<u32> {
+        let parent = &mut self.parent;
+        loop {
+            let p = parent[n as usize];
+            if p == n {
+                return Some(n);
+            }
+            if p == DEAD {
+                return None;
+            }
+            let g = parent[p as usize];
+            parent[n as usize] = g;
+            if g == DEAD {
+                return None;
+            }
+            n = g;
         }
-        if p == DEAD {
-            return None;
+    }
+
+    /// Merges roots `a` and `b` (the smaller into the larger), returns the new root.
+    fn union(&mut self, a: u32, b: u32) -> u32 {
+        if a == b {
+            return a;
         }
-        let g = parent[p as usize];
-        parent[n as usize] = g;
-        if g == DEAD {
-            return None;
+        let (keep, gone) = if self.blobs[a as usize].area >= self.blobs[b as usize].area { (a, b) } else { (b, a) };
+        self.parent[gone as usize] = keep;
+        let other = self.blobs[gone as usize];
+        self.blobs[keep as usize].merge(&other);
+        keep
+    }
+
+    /// Adds a run touching the live roots `roots` (or a dead component if `dead`):
+    /// returns the label of its pixels and, for a new component, its node.
+    fn add(&mut self, run: Blob, roots: Option<u32>, dead: bool) -> (u32, Option<u32>) {
+        let (root, new) = match (dead, roots) {
+            (true, root) => {
+                if let Some(r) = root {
+                    self.parent[r as usize] = DEAD;
+                }
+                return (DEAD, None);
+            }
+            (false, Some(r)) => {
+                self.blobs[r as usize].merge(&run);
+                (r, None)
+            }
+            (false, None) => {
+                let node = self.parent.len() as u32;
+                self.parent.push(node);
+                self.blobs.push(run);
+                (node, Some(node))
+            }
+        };
+        if self.blobs[root as usize].size().into_iter().any(|s| s > self.max_side) {
+            self.parent[root as usize] = DEAD;
+            return (DEAD, None);
         }
-        n = g;
+        (root, new)
     }
 }
 
@@ -142,10 +192,7 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
     if w == 0 || h == 0 {
         return Vec::new();
     }
-    let t0 = std::time::Instant::now();
     let smooth = smooth_3x3(grey.as_raw(), w, h);
-    PH[0].fetch_add(t0.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
-    let t0 = std::time::Instant::now();
 
     // Band b holds the grey values in [levels[b-1], levels[b]); within a band the order
     // does not matter. The pixels go in as runs (maximal stretches of one band along a
@@ -158,108 +205,76 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
         *band = levels.partition_point(|&l| l as usize <= v) as u8;
     }
     let stride = w + 2;
-    let for_each_run = |f: &mut dyn FnMut(usize, u32, u32)| {
-        for (y, row) in smooth.chunks_exact(w).enumerate() {
-            let p0 = (y + 1) * stride + 1;
-            let (mut x0, mut band) = (0, band_of[row[0] as usize]);
-            for (x, &v) in row.iter().enumerate().skip(1) {
-                if band_of[v as usize] != band {
-                    f(band as usize, (p0 + x0) as u32, (x - x0) as u32);
-                    (x0, band) = (x, band_of[v as usize]);
+    let mut runs: Vec<(u32, u32, u8)> = Vec::new();
+    for (y, row) in smooth.chunks_exact(w).enumerate() {
+        let p0 = (y + 1) * stride + 1;
+        let (mut x0, mut band) = (0, band_of[row[0] as usize]);
+        for (x, &v) in row.iter().enumerate().skip(1) {
+            let b = band_of[v as usize];
+            if b != band {
+                if (band as usize) < bands {
+                    runs.push(((p0 + x0) as u32, (x - x0) as u32, band));
                 }
+                (x0, band) = (x, b);
             }
-            f(band as usize, (p0 + x0) as u32, (w - x0) as u32);
         }
-    };
-    let mut start = vec![0u32; bands + 2];
-    for_each_run(&mut |band, _, _| start[band.min(bands) + 1] += 1);
-    for b in 1..start.len() {
+        if (band as usize) < bands {
+            runs.push(((p0 + x0) as u32, (w - x0) as u32, band));
+        }
+    }
+    let mut start = vec![0u32; bands + 1];
+    for &(_, _, band) in &runs {
+        start[band as usize + 1] += 1;
+    }
+    for b in 1..=bands {
         start[b] += start[b - 1];
     }
-    let mut runs = vec![(0u32, 0u32); start[bands] as usize];
+    let mut sorted = vec![(0u32, 0u32); runs.len()];
     let mut next = start.clone();
-    for_each_run(&mut |band, p, len| {
-        if band < bands {
-            runs[next[band] as usize] = (p, len);
-            next[band] += 1;
-        }
-    });
+    for &(p, len, band) in &runs {
+        sorted[next[band as usize] as usize] = (p, len);
+        next[band as usize] += 1;
+    }
 
-    PH[1].fetch_add(t0.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
-    let t0 = std::time::Instant::now();
-    PH[3].fetch_add(runs.len() as u64 * 1000, std::sync::atomic::Ordering::Relaxed);
     let mut label = vec![NONE; padded];
-    let mut parent: Vec<u32> = Vec::new();
-    let mut blobs: Vec<Blob> = Vec::new();
+    let mut forest = Forest { parent: Vec::new(), blobs: Vec::new(), max_side: params.max_side.min(255) };
     // Live roots, with the area they had when last scored.
     let mut alive: Vec<(u32, u32)> = Vec::new();
     let mut found = Vec::new();
-    let max_side = params.max_side.min(255);
     for (b, &level) in levels.iter().enumerate() {
-        for &(p, len) in &runs[start[b] as usize..start[b + 1] as usize] {
+        for &(p, len) in &sorted[start[b] as usize..start[b + 1] as usize] {
             let (p, len) = (p as usize, len as usize);
             let above = &label[p - stride - 1..p - stride + len + 1];
             let below = &label[p + stride - 1..p + stride + len + 1];
             let sides = [label[p - 1], label[p + len]];
-            let around = || above.iter().chain(below).chain(&sides).copied();
-            let lowest = around().fold(NONE, u32::min);
+            let lowest = [above, below, &sides].map(|s| s.iter().fold(NONE, |a, &l| a.min(l)));
+            let lowest = lowest[0].min(lowest[1]).min(lowest[2]);
             // Union with every live component around; any dead one kills the lot.
-            let (mut target, mut dead) = (None, lowest == DEAD);
+            let (mut root, mut dead) = (None, lowest == DEAD);
             if lowest < DEAD {
                 let mut last = NONE;
-                for l in around() {
+                let mut touch = |l: u32| {
                     if l == NONE || l == last {
-                        continue;
+                        return;
                     }
                     last = l;
-                    let Some(r) = (l != DEAD).then(|| find(&mut parent, l)).flatten() else {
-                        dead = true;
-                        continue;
-                    };
-                    target = Some(match target {
-                        Some(t) if t != r => {
-                            let (keep, gone) =
-                                if blobs[t as usize].area >= blobs[r as usize].area { (t, r) } else { (r, t) };
-                            parent[gone as usize] = keep;
-                            let other = blobs[gone as usize];
-                            blobs[keep as usize].merge(&other);
-                            keep
-                        }
-                        _ => r,
-                    });
-                }
+                    match (l != DEAD).then(|| forest.find(l)).flatten() {
+                        Some(r) => root = Some(root.map_or(r, |t| forest.union(t, r))),
+                        None => dead = true,
+                    }
+                };
+                above.iter().chain(below).chain(&sides).for_each(|&l| touch(l));
             }
             let (x, y) = ((p % stride - 1) as u32, (p / stride - 1) as u32);
-            let run = Blob::run(x, y, len as u32);
-            let fill = match (dead, target) {
-                (true, t) => {
-                    if let Some(t) = t {
-                        parent[t as usize] = DEAD;
-                    }
-                    DEAD
-                }
-                (false, Some(t)) => {
-                    blobs[t as usize].merge(&run);
-                    t
-                }
-                (false, None) => {
-                    let node = parent.len() as u32;
-                    parent.push(node);
-                    blobs.push(run);
-                    alive.push((node, 0));
-                    node
-                }
-            };
-            if fill != DEAD && blobs[fill as usize].size().into_iter().any(|s| s > max_side) {
-                parent[fill as usize] = DEAD;
-            }
+            let (fill, new) = forest.add(Blob::run(x, y, len as u32), root, dead);
+            alive.extend(new.map(|n| (n, 0)));
             label[p..p + len].fill(fill);
         }
         alive.retain_mut(|(node, seen)| {
-            if parent[*node as usize] != *node {
+            if forest.parent[*node as usize] != *node {
                 return false;
             }
-            let blob = &blobs[*node as usize];
+            let blob = &forest.blobs[*node as usize];
             if blob.area != *seen {
                 *seen = blob.area;
                 found.extend(score(blob, &smooth, w, h, level, params));
@@ -267,11 +282,8 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
             true
         });
     }
-    PH[2].fetch_add(t0.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
-    let t0 = std::time::Instant::now();
     let kept = suppress_duplicates(found, &mut label, stride, h + 2);
     tracing::debug!(candidates = kept.len());
-    PH[3].fetch_add(t0.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
     kept
 }
 

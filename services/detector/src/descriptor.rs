@@ -123,9 +123,9 @@ impl Default for DescriptorParams {
     fn default() -> Self {
         Self {
             crop_size: 12,
-            poses_per_feature: 32,
-            max_rotation_deg: 60.0,
-            half_turn: true,
+            poses_per_feature: 64,
+            max_rotation_deg: 180.0,
+            half_turn: false,
             stretch: [0.8, 1.2],
             noisy_copies: 4,
             noise_rotation_deg: 5.0,

@@ -25,6 +25,10 @@ pub struct DetectorParams {
     /// larger): real outlets differ from nominal by a few tenths of a mm.
     pub max_plane_px: f64,
     pub max_plane_mm: f64,
+    /// When nothing is found, look again with the candidates whose nearest hole
+    /// sample is within this distance of their nearest background sample taken
+    /// as holes (PCA distance; 0 = no second look).
+    pub second_look_margin: f32,
 }
 
 impl Default for DetectorParams {
@@ -36,6 +40,7 @@ impl Default for DetectorParams {
             max_candidates: 400,
             max_plane_px: 1.2,
             max_plane_mm: 0.8,
+            second_look_margin: 0.15,
         }
     }
 }
@@ -133,17 +138,12 @@ impl Detector {
         times.candidates = ms_since(t);
 
         let t = Instant::now();
+        let classifications: Vec<_> =
+            candidates.iter().map(|c| self.template.descriptor.classify_candidate(grey, c)).collect();
         let classified: Vec<(Candidate, Class)> =
-            candidates.iter().map(|c| (*c, self.template.descriptor.classify_candidate(grey, c).class)).collect();
+            candidates.iter().zip(&classifications).map(|(c, k)| (*c, k.class)).collect();
         times.classify = ms_since(t);
 
-        let t = Instant::now();
-        let lens = Lens { camera };
-        let holes: Vec<&(Candidate, Class)> =
-            classified.iter().filter(|(_, class)| *class != Class::Background).collect();
-        let points: Vec<Point2<f64>> = holes.iter().map(|(c, _)| lens.undistort(c.centre)).collect();
-        let classes: Vec<Class> = holes.iter().map(|(_, class)| *class).collect();
-        let sizes: Vec<f64> = holes.iter().map(|(c, _)| c.size[0].max(c.size[1]) as f64).collect();
         // What the image and the camera tell the hashing: the frame's size, and
         // with a camera the scales an outlet 15-70 cm away can have (sqrt of the
         // Jacobian's determinant; down to cos 60 deg of foreshortening).
@@ -153,17 +153,63 @@ impl Detector {
             let f = (c.fx * c.fy).sqrt();
             hash.scale_range = Some([f / 700.0 * 0.5f64.sqrt(), f / 150.0]);
         }
-        let found = find_outlet(&self.table, &points, &classes, &sizes, &hash);
-        times.hash = ms_since(t);
+        let lens = Lens { camera };
+        let mut detection = self.search(grey, &lens, &classified, &hash, &mut times);
+        if detection.is_none() && self.params.second_look_margin > 0.0 {
+            // A second look: candidates the descriptor put only narrowly in the
+            // background (shadowed or washed-out holes) count as their nearer hole
+            // class. Hashing, its significance test and the plane check still
+            // stand between them and a false alarm.
+            let relaxed: Vec<(Candidate, Class)> = candidates
+                .iter()
+                .zip(&classifications)
+                .map(|(c, k)| {
+                    let [p, g, b] = k.class_distances;
+                    let class = match k.class {
+                        Class::Background if p.min(g) < b + self.params.second_look_margin => {
+                            if p <= g {
+                                Class::Power
+                            } else {
+                                Class::Ground
+                            }
+                        }
+                        other => other,
+                    };
+                    (*c, class)
+                })
+                .collect();
+            if relaxed.iter().zip(&classified).any(|(a, b)| a.1 != b.1) {
+                detection = self.search(grey, &lens, &relaxed, &hash, &mut times);
+            }
+        }
+        DetectReport { detection, candidates: classified, times }
+    }
 
+    /// Hashing over the hole-classed candidates, then refinement.
+    fn search(
+        &self,
+        grey: &GrayImage,
+        lens: &Lens,
+        classified: &[(Candidate, Class)],
+        hash: &HashParams,
+        times: &mut StageTimes,
+    ) -> Option<Detection> {
+        let t = Instant::now();
+        let holes: Vec<&(Candidate, Class)> =
+            classified.iter().filter(|(_, class)| *class != Class::Background).collect();
+        let points: Vec<Point2<f64>> = holes.iter().map(|(c, _)| lens.undistort(c.centre)).collect();
+        let classes: Vec<Class> = holes.iter().map(|(_, class)| *class).collect();
+        let sizes: Vec<f64> = holes.iter().map(|(c, _)| c.size[0].max(c.size[1]) as f64).collect();
+        let found = find_outlet(&self.table, &points, &classes, &sizes, hash);
+        times.hash += ms_since(t);
         let t = Instant::now();
         let detection = found.and_then(|m| {
             let guesses: Vec<Option<Point2<f64>>> =
                 m.assignment.iter().map(|a| a.and_then(|k| holes.get(k).map(|(c, _)| c.centre))).collect();
-            self.refine(grey, &lens, &m.transform, &guesses, m.score)
+            self.refine(grey, lens, &m.transform, &guesses, m.score)
         });
-        times.refine = ms_since(t);
-        DetectReport { detection, candidates: classified, times }
+        times.refine += ms_since(t);
+        detection
     }
 
     /// Refines every hole from the hashing's homography, then checks that the

@@ -107,21 +107,7 @@ pub(crate) struct NewtonSums {
 /// `z <= 0` get no weight. Without `sandwich`, `b` is left zero (a third less
 /// work, for a pass whose covariance is not needed).
 pub(crate) fn newton_sums(points: &[[f32; 3]], wt: &Weighting, sandwich: bool) -> NewtonSums {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU has both features, checked just above.
-        return unsafe {
-            if sandwich { newton_sums_avx2_fma::<true>(points, wt) } else { newton_sums_avx2_fma::<false>(points, wt) }
-        };
-    }
     if sandwich { newton_kernel::<true>(points, wt) } else { newton_kernel::<false>(points, wt) }
-}
-
-/// [`newton_kernel`] compiled for AVX2 and FMA: four lanes make one vector.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn newton_sums_avx2_fma<const SANDWICH: bool>(points: &[[f32; 3]], wt: &Weighting) -> NewtonSums {
-    newton_kernel::<SANDWICH>(points, wt)
 }
 
 /// Points per block: the block's weights and coordinates stay in L1.

@@ -61,14 +61,14 @@ pub struct PlaneParams {
     /// (estimated) sigmas (default 2.5): points beyond `c` sigmas have no weight
     /// and are not inliers. A plate standing `D` sigmas proud over a fraction
     /// `ε` of the points pulls the fit towards it by about 0.025 sigma at `D` =
-    /// 3.8, ε = 0.3 (0.1 sigma at `D` = 3.2), where `c` = 3 doubles that and a
+    /// 3.8, ε = 0.3 (0.09 sigma at `D` = 3.2), where `c` = 3 doubles that and a
     /// hard ±2.5-sigma band quadruples it; efficiency (64%) matters little with
     /// thousands of points.
     pub inlier_sigmas: f64,
     /// Most passes over every point after the local refinement on the sample
-    /// (default 6). Each pass takes a Newton step; the refinement stops as soon as
-    /// a step is shorter than 0.05 of the plane's standard deviation, which
-    /// takes two passes on the rendered clouds.
+    /// (default 6). Each pass takes a Newton step; the refinement stops after a
+    /// step shorter than half the plane's standard deviation, which takes two
+    /// passes on the rendered clouds.
     pub max_refine_iterations: usize,
     /// Least fraction of the valid points (in the region of interest) that must be
     /// inliers of the final plane (default 0.2); otherwise
