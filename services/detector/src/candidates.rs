@@ -44,15 +44,17 @@ impl Default for CandidateParams {
 }
 
 impl CandidateParams {
-    /// Settings that miss no hole of the rendered scenarios (measured on 7 x 20 images
-    /// per resolution, see `tests/candidates.rs`), at ~25 candidates per 640x480 image:
-    /// - levels 10 to 250 step 10: over-exposed plates leave slots at grey 160-200, dark
-    ///   frames holes below 30, and finer steps catch a hole before it merges with a
-    ///   shadow;
-    /// - contrast 1.2: a 2 mm slot 45-50 cm away is ~2 px wide, and sensor blur and the
-    ///   3x3 smoothing leave its centre at only 1.22-1.3 times the face around it;
-    /// - area >= 8 px: drops sensor-noise specks, which otherwise double the count in
-    ///   dark frames; the smallest hole (a slot at 50 cm, 640x480) covers ~19 px.
+    /// Settings under which no visible hole of the rendered scenarios is missed at
+    /// 640x480 (see `tests/candidates.rs`), at ~30 candidates per image:
+    /// - levels 10 to 240 step 10: over-exposed plates leave slots at grey 160-200, dark
+    ///   frames leave holes below 30, and with steps of 20 a hole is missed when it
+    ///   merges with a shadow between two levels;
+    /// - contrast 1.1: a 2 mm slot 45-50 cm away, seen at an angle, is under 2 px wide,
+    ///   and sensor blur and the 3x3 smoothing leave its centre at only 1.14-1.2 times
+    ///   the face around it. From 1280x960 on, holes are wider than the blur and 1.3
+    ///   keeps them all at a third of the count in dark, noisy frames;
+    /// - area >= 8 px: drops sensor-noise specks; the smallest hole (a slot at 50 cm,
+    ///   640x480) covers ~15-20 px.
     pub fn high_recall() -> Self {
         Self { levels: (10..=240).step_by(10).collect(), min_contrast: 1.1, min_area: 8, ..Self::default() }
     }
@@ -150,10 +152,10 @@ impl Forest {
         keep
     }
 
-    /// Adds a run touching the live roots `roots` (or a dead component if `dead`):
-    /// returns the label of its pixels and, for a new component, its node.
-    fn add(&mut self, run: Blob, roots: Option<u32>, dead: bool) -> (u32, Option<u32>) {
-        let (root, new) = match (dead, roots) {
+    /// Adds a run touching the live component `root` (or a dead one if `dead`): returns
+    /// the label of its pixels and, for a new component, its node.
+    fn add(&mut self, run: Blob, root: Option<u32>, dead: bool) -> (u32, Option<u32>) {
+        let (root, new) = match (dead, root) {
             (true, root) => {
                 if let Some(r) = root {
                     self.parent[r as usize] = DEAD;
@@ -188,11 +190,9 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
     levels.sort_unstable();
     levels.dedup();
     let padded = (w + 2).checked_mul(h + 2).filter(|&n| n < DEAD as usize);
-    let (Some(&top), Some(padded)) = (levels.last(), padded) else { return Vec::new() };
-    if w == 0 || h == 0 {
-        return Vec::new();
-    }
-    let smooth = smooth_3x3(grey.as_raw(), w, h);
+    let pixels = grey.as_raw().get(..w * h).filter(|p| !p.is_empty());
+    let (Some(&top), Some(padded), Some(pixels)) = (levels.last(), padded, pixels) else { return Vec::new() };
+    let smooth = smooth_3x3(pixels, w, h);
 
     // Band b holds the grey values in [levels[b-1], levels[b]); within a band the order
     // does not matter. The pixels go in as runs (maximal stretches of one band along a
@@ -253,17 +253,16 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
             let (mut root, mut dead) = (None, lowest == DEAD);
             if lowest < DEAD {
                 let mut last = NONE;
-                let mut touch = |l: u32| {
+                for &l in above.iter().chain(below).chain(&sides) {
                     if l == NONE || l == last {
-                        return;
+                        continue;
                     }
                     last = l;
                     match (l != DEAD).then(|| forest.find(l)).flatten() {
                         Some(r) => root = Some(root.map_or(r, |t| forest.union(t, r))),
                         None => dead = true,
                     }
-                };
-                above.iter().chain(below).chain(&sides).for_each(|&l| touch(l));
+                }
             }
             let (x, y) = ((p % stride - 1) as u32, (p / stride - 1) as u32);
             let (fill, new) = forest.add(Blob::run(x, y, len as u32), root, dead);

@@ -72,11 +72,15 @@ pub struct RefineParams {
     pub iterations: usize,
     /// The fit is refused if it moves the centre further than this (pixels).
     pub max_shift_px: f64,
+    /// The opening must be at least this much darker than the face around it,
+    /// as a fraction of the face's grey level: a predicted hole on a blank plate
+    /// fits noise, not an opening.
+    pub min_relative_contrast: f64,
 }
 
 impl Default for RefineParams {
     fn default() -> Self {
-        Self { margin_mm: 1.8, iterations: 10, max_shift_px: 3.0 }
+        Self { margin_mm: 1.8, iterations: 10, max_shift_px: 3.0, min_relative_contrast: 0.2 }
     }
 }
 
@@ -222,7 +226,9 @@ fn fit(
     let rms = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
     // Mean level inside the outline against the face's.
     let contrast = p[0] - p[1];
-    if t.norm() > params.max_shift_px || contrast <= 0.0 || !t.x.is_finite() || !t.y.is_finite() {
+    let relative = contrast / p[0].max(1.0);
+    if t.norm() > params.max_shift_px || relative < params.min_relative_contrast || !t.x.is_finite() || !t.y.is_finite()
+    {
         return None;
     }
     Some(Refined { centre: guess + t, rms, contrast })

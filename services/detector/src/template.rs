@@ -108,79 +108,103 @@ impl Template {
     }
 }
 
-/// One labelled training image: the holes' pixels in the geometry's order.
+/// One labelled training image: the holes' pixels in the geometry's order, and
+/// the hole candidates found in it.
 #[derive(Debug, Clone)]
 pub struct TrainingImage<'a> {
     pub grey: &'a GrayImage,
     pub holes: Vec<Point2<f64>>,
+    pub candidates: Vec<Candidate>,
 }
 
-/// Trains a template from one labelled image and background images (or, without
-/// them, only the training image's candidates away from the holes). Candidates
-/// are the hole candidates of each image, already found. With `calibrate_sizes`
-/// the candidates' sizes on the labelled holes set how candidates are scaled for
-/// classification (worth it for photographs; the rendered default suits renders).
+/// Empty pixels between the images of the training mosaic: wider than a warped
+/// patch reaches (24 patch pixels at the largest scale).
+const MOSAIC_GAP_PX: u32 = 64;
+
+/// The images side by side in one, and where each one's origin went: the
+/// descriptor samples every feature from one image.
+fn mosaic(images: &[&GrayImage]) -> (GrayImage, Vec<f64>) {
+    let width = images.iter().map(|g| g.width() + MOSAIC_GAP_PX).sum::<u32>();
+    let height = images.iter().map(|g| g.height()).max().unwrap_or(0);
+    let mut out = GrayImage::from_pixel(width.max(1), height.max(1), image::Luma([128]));
+    let mut offsets = Vec::with_capacity(images.len());
+    let mut x = 0;
+    for g in images {
+        image::imageops::replace(&mut out, *g, x as i64, 0);
+        offsets.push(x as f64);
+        x += g.width() + MOSAIC_GAP_PX;
+    }
+    (out, offsets)
+}
+
+/// Trains a template from labelled views of the outlet (the paper: ONE image)
+/// and background images; without backgrounds, only the views' candidates away
+/// from the holes serve. With `calibrate_sizes` the candidates' sizes on the
+/// labelled holes set how candidates are scaled for classification (worth it for
+/// photographs; the rendered default suits renders).
 pub fn train_template(
     name: &str,
     geometry: OutletGeometry,
-    training: &TrainingImage,
-    training_candidates: &[Candidate],
+    views: &[TrainingImage],
     backgrounds: &[(&GrayImage, Vec<Candidate>)],
     params: &DescriptorParams,
     calibrate_sizes: bool,
 ) -> Result<Template, TemplateError> {
     let invalid = |reason: String| TemplateError::Invalid { name: name.to_string(), reason };
-    if training.holes.len() != geometry.holes.len() {
-        return Err(invalid(format!(
-            "{} labelled holes for a geometry of {}",
-            training.holes.len(),
-            geometry.holes.len()
-        )));
-    }
     geometry.validate(name).map_err(|e| invalid(e.to_string()))?;
-    let pitch_px =
-        slot_pitch_px(&geometry, &training.holes).ok_or_else(|| invalid("the labels are degenerate".into()))?;
-    let scale = params.scale_for_slot_pitch(pitch_px);
-    let mut features: Vec<TrainingFeature> = geometry
-        .holes
-        .iter()
-        .zip(&training.holes)
-        .map(|(h, p)| TrainingFeature { centre: *p, class: Class::from(h.kind), scale })
-        .collect();
-    // Background: what else looks like a hole, away from the outlet.
+    if views.is_empty() {
+        return Err(invalid("no labelled training image".into()));
+    }
+    let images: Vec<&GrayImage> = views.iter().map(|v| v.grey).chain(backgrounds.iter().map(|(g, _)| *g)).collect();
+    let (grey, offsets) = mosaic(&images);
+    let shift = |p: Point2<f64>, k: usize| Point2::new(p.x + offsets[k], p.y);
+    // Background: what else looks like a hole. The views' own non-hole
+    // candidates (screw slots, face edges) are the most telling of all.
     const MAX_BACKGROUND: usize = 60;
-    // The training image's own non-hole candidates (screw slots, face edges) are
-    // the most telling background of all.
-    features.extend(background_features(
-        training.grey,
-        training_candidates,
-        &training.holes,
-        0.35 * pitch_px,
-        MAX_BACKGROUND / 2,
-    ));
+    let per_view = (MAX_BACKGROUND / 2).div_ceil(views.len());
+    let mut features = Vec::new();
+    let mut pairs: Vec<(TrainingFeature, Candidate)> = Vec::new();
+    for (k, view) in views.iter().enumerate() {
+        if view.holes.len() != geometry.holes.len() {
+            return Err(invalid(format!(
+                "{} labelled holes for a geometry of {}",
+                view.holes.len(),
+                geometry.holes.len()
+            )));
+        }
+        let pitch_px =
+            slot_pitch_px(&geometry, &view.holes).ok_or_else(|| invalid("the labels are degenerate".into()))?;
+        let scale = params.scale_for_slot_pitch(pitch_px);
+        for (h, p) in geometry.holes.iter().zip(&view.holes) {
+            let feature = TrainingFeature { centre: shift(*p, k), class: Class::from(h.kind), scale };
+            features.push(feature);
+            // The candidate that the candidate stage found on this hole.
+            let on_hole = view
+                .candidates
+                .iter()
+                .filter(|c| (c.centre - p).norm() < 0.3 * pitch_px)
+                .min_by(|a, b| (a.centre - p).norm().total_cmp(&(b.centre - p).norm()));
+            if let Some(c) = on_hole {
+                pairs.push((feature, *c));
+            }
+        }
+        let background = background_features(view.grey, &view.candidates, &view.holes, 0.35 * pitch_px, per_view);
+        features.extend(background.into_iter().map(|f| TrainingFeature { centre: shift(f.centre, k), ..f }));
+    }
     if !backgrounds.is_empty() {
         let per_image = MAX_BACKGROUND.div_ceil(backgrounds.len());
-        for (grey, candidates) in backgrounds {
-            features.extend(background_features(grey, candidates, &[], 0.0, per_image));
+        for (j, (g, candidates)) in backgrounds.iter().enumerate() {
+            let k = views.len() + j;
+            let background = background_features(g, candidates, &[], 0.0, per_image);
+            features.extend(background.into_iter().map(|f| TrainingFeature { centre: shift(f.centre, k), ..f }));
         }
     }
-    let mut descriptor = crate::descriptor::train(training.grey, &features, params)
+    let mut descriptor = crate::descriptor::train(&grey, &features, params)
         .map_err(|source| TemplateError::Training { name: name.to_string(), source })?;
     if calibrate_sizes {
         // How big the candidate stage sees this outlet's holes, relative to their
         // spacing: on a real photograph (blur, an oblique view, dots merging with
         // the ground holes) it differs from the rendered default.
-        let pairs: Vec<(TrainingFeature, Candidate)> = features
-            .iter()
-            .filter(|f| f.class != Class::Background)
-            .filter_map(|f| {
-                training_candidates
-                    .iter()
-                    .filter(|c| (c.centre - f.centre).norm() < 0.3 * pitch_px)
-                    .min_by(|a, b| (a.centre - f.centre).norm().total_cmp(&(b.centre - f.centre).norm()))
-                    .map(|c| (*f, *c))
-            })
-            .collect();
         descriptor.calibrate_candidate_extent(&pairs);
     }
     Ok(Template { name: name.to_string(), geometry, descriptor })

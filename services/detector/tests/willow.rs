@@ -48,8 +48,7 @@ fn a_template_trained_on_the_willow_photo_finds_its_outlet() {
     let template = train_template(
         "willow",
         geometry,
-        &TrainingImage { grey: &grey, holes: holes.clone() },
-        &candidates,
+        &[TrainingImage { grey: &grey, holes: holes.clone(), candidates }],
         &[],
         &DescriptorParams::default(),
         true,

@@ -428,8 +428,7 @@ pub fn train(args: TrainArgs) -> Result<()> {
     let template = train_template(
         &name,
         geometry,
-        &TrainingImage { grey: &grey, holes: pixels },
-        &candidates,
+        &[TrainingImage { grey: &grey, holes: pixels, candidates }],
         &refs,
         &DescriptorParams::default(),
         true,

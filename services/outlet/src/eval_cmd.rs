@@ -424,7 +424,7 @@ fn plot(outcomes: &[Outcome]) -> RgbImage {
     let (w, h) = (900u32, 360u32);
     let mut img = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
     let positives: Vec<&Outcome> = outcomes.iter().filter(|o| o.positive).collect();
-    let panels: [(&str, Vec<(String, f64, usize)>); 2] = [
+    let panels: [(&str, Vec<Bar>); 2] = [
         ("detection rate vs off-axis angle (deg)", bins(&positives, |o| o.off_axis_deg, 0.0, 40.0, 8)),
         ("detection rate vs distance (cm)", bins(&positives, |o| o.distance_m * 100.0, 20.0, 50.0, 6)),
     ];
@@ -463,7 +463,10 @@ fn plot(outcomes: &[Outcome]) -> RgbImage {
     img
 }
 
-fn bins(o: &[&Outcome], key: impl Fn(&Outcome) -> f64, lo: f64, hi: f64, n: usize) -> Vec<(String, f64, usize)> {
+/// A bar: its label, the detection rate, the number of images.
+type Bar = (String, f64, usize);
+
+fn bins(o: &[&Outcome], key: impl Fn(&Outcome) -> f64, lo: f64, hi: f64, n: usize) -> Vec<Bar> {
     let step = (hi - lo) / n as f64;
     (0..n)
         .map(|k| {

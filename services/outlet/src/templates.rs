@@ -23,27 +23,51 @@ pub fn load(name_or_path: &str) -> Result<Template> {
     }
 }
 
-/// Trains a built-in template.
+/// The views a built-in template learns from: (distance m, off-axis deg,
+/// azimuth deg, plate colour index). The paper trains on one image; rendered
+/// views cost nothing, and a few angles teach the descriptor how the holes' side
+/// walls and floors show as the view turns, which affine warps cannot.
+const TRAINING_VIEWS: [(f64, f64, f64, usize); 4] =
+    [(0.30, 0.0, 0.0, 0), (0.35, 30.0, 0.0, 1), (0.35, 30.0, 90.0, 0), (0.45, 20.0, 225.0, 1)];
+
+/// Trains a built-in template from rendered views of a white (and an ivory)
+/// outlet and rendered backgrounds without an outlet.
 pub fn builtin(name: &str) -> Result<Template> {
     let geometry = OutletGeometry::builtin(name)?;
     let camera = CameraModel { distortion: [0.0; 5], ..CameraModel::default_vga() };
     let scenario = if name == "2x1" { "fw_2x1white" } else { "white2x2" };
-    let mut scene = sample_scene(scenario, TRAINING_SEED, 0, &camera)?;
-    scene.pose = pose_looking(Vector3::z(), 0.30, 0.0, 0.0, 0.0);
-    scene.plates.truncate(1);
-    scene.spots.clear();
-    scene.occluders.clear();
-    scene.hole_glint = 0.0;
-    scene.light.position_cam_m = nalgebra::Point3::new(0.1, -0.3, -0.1);
-    scene.sensor.exposure = 1.0;
-    scene.sensor.blur_sigma = 0.0;
-    scene.sensor.jpeg_quality = None;
-    scene.plates[0].cracks.clear();
-    let frame = render_frame(&scene, "training");
-    let grey = grey_of(&frame.frame.image);
-    let holes: Vec<Point2<f64>> = frame.truth.holes.iter().map(|h| Point2::new(h.pixel[0], h.pixel[1])).collect();
-    let params = CandidateParams::default();
-    let candidates = find_candidates(&grey, &params);
+    let params = CandidateParams::high_recall();
+    let mut greys = Vec::new();
+    let mut labels = Vec::new();
+    for (k, &(distance, off_axis, azimuth, colour)) in TRAINING_VIEWS.iter().enumerate() {
+        let mut scene = sample_scene(scenario, TRAINING_SEED, k as u64, &camera)?;
+        scene.pose = pose_looking(Vector3::z(), distance, off_axis.to_radians(), azimuth.to_radians(), 0.0);
+        scene.plates.truncate(1);
+        let plate_colour = [[0.78, 0.78, 0.75], [0.76, 0.70, 0.54]][colour % 2];
+        scene.plates[0].colour = plate_colour;
+        if let outlet_sim::scene::Insert::Receptacles(faces) = &mut scene.plates[0].insert {
+            faces.iter_mut().for_each(|f| {
+                f.colour = plate_colour;
+                f.shape.t_slot = false;
+            });
+        }
+        scene.plates[0].cracks.clear();
+        scene.spots.clear();
+        scene.occluders.clear();
+        scene.hole_glint = 0.0;
+        scene.light.position_cam_m = nalgebra::Point3::new(0.1, -0.3, -0.1);
+        scene.sensor.exposure = 1.0;
+        scene.sensor.blur_sigma = 0.0;
+        scene.sensor.jpeg_quality = None;
+        let frame = render_frame(&scene, "training");
+        greys.push(grey_of(&frame.frame.image));
+        labels.push(frame.truth.holes.iter().map(|h| Point2::new(h.pixel[0], h.pixel[1])).collect::<Vec<_>>());
+    }
+    let views: Vec<TrainingImage> = greys
+        .iter()
+        .zip(labels)
+        .map(|(g, holes)| TrainingImage { grey: g, holes, candidates: find_candidates(g, &params) })
+        .collect();
     let backgrounds: Vec<_> = (0..3)
         .map(|i| {
             let scene = sample_scene("negative", TRAINING_SEED, i, &camera)?;
@@ -53,14 +77,6 @@ pub fn builtin(name: &str) -> Result<Template> {
         })
         .collect::<Result<_>>()?;
     let refs: Vec<_> = backgrounds.iter().map(|(g, c)| (g, c.clone())).collect();
-    train_template(
-        name,
-        geometry,
-        &TrainingImage { grey: &grey, holes },
-        &candidates,
-        &refs,
-        &DescriptorParams::default(),
-        false,
-    )
-    .with_context(|| format!("training the built-in {name} template"))
+    train_template(name, geometry, &views, &refs, &DescriptorParams::default(), false)
+        .with_context(|| format!("training the built-in {name} template"))
 }
