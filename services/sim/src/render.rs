@@ -145,16 +145,19 @@ impl<'a> Prepared<'a> {
                     z,
                 ));
             }
+            // Cracks are long and thin: small boxes along them, not one big box
+            // (which would supersample most of the plate).
             for crack in &plate.cracks {
-                let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
-                for p in &crack.points {
-                    for k in 0..2 {
-                        lo[k] = lo[k].min(p[k] + c[k] - crack.half_width);
-                        hi[k] = hi[k].max(p[k] + c[k] + crack.half_width);
+                let r = crack.half_width + 0.6;
+                for w in crack.points.windows(2) {
+                    let steps = ((w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]) / 1.0).ceil().max(1.0) as usize;
+                    for k in 0..=steps {
+                        let t = k as f64 / steps as f64;
+                        let (x, y) =
+                            (c[0] + w[0][0] + t * (w[1][0] - w[0][0]), c[1] + w[0][1] + t * (w[1][1] - w[0][1]));
+                        boxes_mm.push(([x - r, y - r], [x + r, y + r], z));
                     }
                 }
-                boxes_mm.push((lo, hi, z));
-                boxes_mm.push((lo, hi, 0.0));
             }
             if let Insert::Rocker { .. } = plate.insert {
                 boxes_mm.push(([c[0] - ROCKER_HALF_MM[0], c[1] - 1.0], [c[0] + ROCKER_HALF_MM[0], c[1] + 1.0], z));
@@ -643,6 +646,10 @@ struct PixelLight {
 
 #[inline]
 fn on_crack(crack: &Crack, q: [f64; 2]) -> bool {
+    let [x0, y0, x1, y1] = crack.bounds();
+    if q[0] < x0 || q[0] > x1 || q[1] < y0 || q[1] > y1 {
+        return false;
+    }
     crack.points.windows(2).any(|w| segment_distance(q, w[0], w[1]) < crack.half_width)
 }
 

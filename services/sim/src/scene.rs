@@ -56,6 +56,17 @@ pub struct Crack {
     pub darkness: f32,
 }
 
+impl Crack {
+    /// Bounding box (x0, y0, x1, y1) of the crack and its width (mm).
+    #[inline]
+    pub fn bounds(&self) -> [f64; 4] {
+        let h = self.half_width;
+        self.points.iter().fold([f64::MAX, f64::MAX, f64::MIN, f64::MIN], |b, p| {
+            [b[0].min(p[0] - h), b[1].min(p[1] - h), b[2].max(p[0] + h), b[3].max(p[1] + h)]
+        })
+    }
+}
+
 /// A dark round spot (dirt, a drill hole, paint) on any surface.
 #[derive(Debug, Clone, Copy)]
 pub struct Spot {
