@@ -2,13 +2,14 @@
 //! the image thresholded at several levels, kept when their centre is darker than four
 //! pixels around them by the contrast ratio r_C of the paper's equation (1).
 //!
-//! All levels are done in one pass: the pixels are bucketed by threshold band (counting
-//! sort) and added band after band to a union-find over 8-connected pixels that keeps
-//! each component's bounding box, area and coordinate sums. After each band, i.e. at
-//! each level, the components that changed and still fit the size range are scored.
-//! A component that outgrows `max_side` is marked dead once, so the large bright
-//! regions cost O(1) per pixel. The same hole shows at several levels: duplicates
-//! closer than [`DUPLICATE_RADIUS_PX`] are dropped in favour of the highest contrast.
+//! All levels are done in one pass, a component tree: the pixels are grouped into runs
+//! (stretches of one threshold band along a row), counting-sorted by band and added band
+//! after band to a union-find over 8-connected pixels that keeps each component's
+//! bounding box, area and coordinate sums. After each band, i.e. at each level, the
+//! components that grew and still fit the size range are scored. A component that
+//! outgrows `max_side` is marked dead once, so the large bright regions cost next to
+//! nothing. The same hole shows at several levels: of candidates closer than
+//! [`DUPLICATE_RADIUS_PX`] the highest contrast one is kept.
 
 use crate::Candidate;
 use image::GrayImage;
@@ -51,8 +52,8 @@ impl CandidateParams {
     ///   merges with a shadow between two levels;
     /// - contrast 1.1: a 2 mm slot 45-50 cm away, seen at an angle, is under 2 px wide,
     ///   and sensor blur and the 3x3 smoothing leave its centre at only 1.14-1.2 times
-    ///   the face around it. From 1280x960 on, holes are wider than the blur and 1.3
-    ///   keeps them all at a third of the count in dark, noisy frames;
+    ///   the face around it. From 1280x960 on, holes are wider than the blur: 1.3 still
+    ///   keeps them all and halves the count (a quarter in dark, noisy frames);
     /// - area >= 8 px: drops sensor-noise specks; the smallest hole (a slot at 50 cm,
     ///   640x480) covers ~15-20 px.
     pub fn high_recall() -> Self {
@@ -181,6 +182,28 @@ impl Forest {
     }
 }
 
+/// The components a run touches: their union so far, and whether one is dead.
+struct Touch {
+    root: Option<u32>,
+    dead: bool,
+    /// The label seen last, to skip the runs of equal labels along a row.
+    last: u32,
+}
+
+impl Touch {
+    #[inline]
+    fn label(&mut self, forest: &mut Forest, l: u32) {
+        if l == NONE || l == self.last {
+            return;
+        }
+        self.last = l;
+        match if l == DEAD { None } else { forest.find(l) } {
+            Some(r) => self.root = Some(self.root.map_or(r, |t| forest.union(t, r))),
+            None => self.dead = true,
+        }
+    }
+}
+
 /// Hole candidates of a grey image (see [`crate::grey_of`]), highest contrast first.
 /// Never panics; an empty image or one without levels gives none.
 pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candidate> {
@@ -194,77 +217,32 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
     let (Some(&top), Some(padded), Some(pixels)) = (levels.last(), padded, pixels) else { return Vec::new() };
     let smooth = smooth_3x3(pixels, w, h);
 
-    // Band b holds the grey values in [levels[b-1], levels[b]); within a band the order
-    // does not matter. The pixels go in as runs (maximal stretches of one band along a
-    // row), counting-sorted by band, in raster order within a band to keep memory
-    // accesses local. Indices are in a frame one pixel wider on each side, so that every
-    // pixel has 8 neighbours.
-    let bands = levels.len();
-    let mut band_of = [u8::MAX; 256];
-    for (v, band) in band_of.iter_mut().enumerate().take(top as usize) {
-        *band = levels.partition_point(|&l| l as usize <= v) as u8;
-    }
+    let (start, runs) = runs_by_band(&smooth, w, &levels, top);
     let stride = w + 2;
-    let mut runs: Vec<(u32, u32, u8)> = Vec::new();
-    for (y, row) in smooth.chunks_exact(w).enumerate() {
-        let p0 = (y + 1) * stride + 1;
-        let (mut x0, mut band) = (0, band_of[row[0] as usize]);
-        for (x, &v) in row.iter().enumerate().skip(1) {
-            let b = band_of[v as usize];
-            if b != band {
-                if (band as usize) < bands {
-                    runs.push(((p0 + x0) as u32, (x - x0) as u32, band));
-                }
-                (x0, band) = (x, b);
-            }
-        }
-        if (band as usize) < bands {
-            runs.push(((p0 + x0) as u32, (w - x0) as u32, band));
-        }
-    }
-    let mut start = vec![0u32; bands + 1];
-    for &(_, _, band) in &runs {
-        start[band as usize + 1] += 1;
-    }
-    for b in 1..=bands {
-        start[b] += start[b - 1];
-    }
-    let mut sorted = vec![(0u32, 0u32); runs.len()];
-    let mut next = start.clone();
-    for &(p, len, band) in &runs {
-        sorted[next[band as usize] as usize] = (p, len);
-        next[band as usize] += 1;
-    }
-
     let mut label = vec![NONE; padded];
     let mut forest = Forest { parent: Vec::new(), blobs: Vec::new(), max_side: params.max_side.min(255) };
     // Live roots, with the area they had when last scored.
     let mut alive: Vec<(u32, u32)> = Vec::new();
     let mut found = Vec::new();
     for (b, &level) in levels.iter().enumerate() {
-        for &(p, len) in &sorted[start[b] as usize..start[b + 1] as usize] {
-            let (p, len) = (p as usize, len as usize);
+        for &[x, y, len] in &runs[start[b] as usize..start[b + 1] as usize] {
+            // Labels live in a frame one pixel wider on each side: every pixel has 8 neighbours.
+            let (p, len) = ((y as usize + 1) * stride + x as usize + 1, len as usize);
             let above = &label[p - stride - 1..p - stride + len + 1];
             let below = &label[p + stride - 1..p + stride + len + 1];
             let sides = [label[p - 1], label[p + len]];
             let lowest = [above, below, &sides].map(|s| s.iter().fold(NONE, |a, &l| a.min(l)));
             let lowest = lowest[0].min(lowest[1]).min(lowest[2]);
             // Union with every live component around; any dead one kills the lot.
-            let (mut root, mut dead) = (None, lowest == DEAD);
+            let mut touch = Touch { root: None, dead: lowest == DEAD, last: NONE };
             if lowest < DEAD {
-                let mut last = NONE;
-                for &l in above.iter().chain(below).chain(&sides) {
-                    if l == NONE || l == last {
-                        continue;
-                    }
-                    last = l;
-                    match (l != DEAD).then(|| forest.find(l)).flatten() {
-                        Some(r) => root = Some(root.map_or(r, |t| forest.union(t, r))),
-                        None => dead = true,
+                for labels in [above, below, &sides] {
+                    for &l in labels {
+                        touch.label(&mut forest, l);
                     }
                 }
             }
-            let (x, y) = ((p % stride - 1) as u32, (p / stride - 1) as u32);
+            let Touch { root, dead, .. } = touch;
             let (fill, new) = forest.add(Blob::run(x, y, len as u32), root, dead);
             alive.extend(new.map(|n| (n, 0)));
             label[p..p + len].fill(fill);
@@ -284,6 +262,47 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
     let kept = suppress_duplicates(found, &mut label, stride, h + 2);
     tracing::debug!(candidates = kept.len());
     kept
+}
+
+/// Band b holds the grey values in [levels[b-1], levels[b]); the order of the pixels
+/// within a band does not matter. Returns the runs (maximal stretches of one band along a
+/// row, as [x, y, length]) grouped by band, in raster order within a band to keep the
+/// union-find's memory accesses local, and where each band's runs start.
+fn runs_by_band(smooth: &[u8], w: usize, levels: &[u8], top: u8) -> (Vec<u32>, Vec<[u32; 3]>) {
+    let bands = levels.len();
+    let mut band_of = [u8::MAX; 256];
+    for (v, band) in band_of.iter_mut().enumerate().take(top as usize) {
+        *band = levels.partition_point(|&l| l as usize <= v) as u8;
+    }
+    let mut runs: Vec<([u32; 3], u8)> = Vec::new();
+    for (y, row) in smooth.chunks_exact(w).enumerate() {
+        let (mut x0, mut band) = (0, band_of[row[0] as usize]);
+        for (x, &v) in row.iter().enumerate().skip(1) {
+            if band_of[v as usize] != band {
+                if (band as usize) < bands {
+                    runs.push(([x0 as u32, y as u32, (x - x0) as u32], band));
+                }
+                (x0, band) = (x, band_of[v as usize]);
+            }
+        }
+        if (band as usize) < bands {
+            runs.push(([x0 as u32, y as u32, (w - x0) as u32], band));
+        }
+    }
+    let mut start = vec![0u32; bands + 1];
+    for &(_, band) in &runs {
+        start[band as usize + 1] += 1;
+    }
+    for b in 1..=bands {
+        start[b] += start[b - 1];
+    }
+    let mut sorted = vec![[0u32; 3]; runs.len()];
+    let mut next = start.clone();
+    for &(run, band) in &runs {
+        sorted[next[band as usize] as usize] = run;
+        next[band as usize] += 1;
+    }
+    (start, sorted)
 }
 
 /// The candidate of a component at a level, if its size and contrast qualify.
