@@ -8,6 +8,7 @@
 pub mod camera;
 pub mod camera_info;
 pub mod geometry;
+pub mod math;
 pub mod ply;
 pub mod truth;
 

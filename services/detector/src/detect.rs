@@ -8,7 +8,7 @@ use crate::refine::{HoleShape, RefineParams, refine_hole};
 use crate::template::Template;
 use crate::{Candidate, Class, grey_of};
 use image::{GrayImage, RgbImage};
-use nalgebra::{Matrix2, Matrix3, Point2, Vector2, Vector3};
+use nalgebra::{Matrix2, Matrix3, Point2, Vector2};
 use outlet_protocol::{CameraModel, HoleKind};
 use std::time::Instant;
 
@@ -328,11 +328,7 @@ fn centroid(points: &[Point2<f64>]) -> Point2<f64> {
     Point2::from(points.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / points.len().max(1) as f64)
 }
 
-/// Applies a homography; `None` at or behind the horizon.
-pub fn apply(h: &Matrix3<f64>, p: &Point2<f64>) -> Option<Point2<f64>> {
-    let q = h * Vector3::new(p.x, p.y, 1.0);
-    (q.z.abs() > 1e-12 && q.x.is_finite() && q.y.is_finite()).then(|| Point2::new(q.x / q.z, q.y / q.z))
-}
+pub use outlet_protocol::math::apply_homography as apply;
 
 /// d(captured pixel)/d(template mm) at a template point.
 fn local_jacobian(h: &Matrix3<f64>, lens: &Lens, t: &Point2<f64>) -> Option<Matrix2<f64>> {
@@ -341,37 +337,4 @@ fn local_jacobian(h: &Matrix3<f64>, lens: &Lens, t: &Point2<f64>) -> Option<Matr
     Some(Matrix2::new(xp.x - xm.x, yp.x - ym.x, xp.y - xm.y, yp.y - ym.y))
 }
 
-/// Least-squares homography from point pairs (normalised DLT), `None` if degenerate.
-pub fn fit_homography(pairs: &[(Point2<f64>, Point2<f64>)]) -> Option<Matrix3<f64>> {
-    if pairs.len() < 4 {
-        return None;
-    }
-    let normaliser = |pts: &mut dyn Iterator<Item = Point2<f64>>| {
-        let v: Vec<Point2<f64>> = pts.collect();
-        let n = v.len() as f64;
-        let c = v.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / n;
-        let d = v.iter().map(|p| (p.coords - c).norm()).sum::<f64>() / n;
-        if d <= 1e-12 {
-            return None;
-        }
-        let s = std::f64::consts::SQRT_2 / d;
-        Some(Matrix3::new(s, 0.0, -s * c.x, 0.0, s, -s * c.y, 0.0, 0.0, 1.0))
-    };
-    let ta = normaliser(&mut pairs.iter().map(|p| p.0))?;
-    let tb = normaliser(&mut pairs.iter().map(|p| p.1))?;
-    let mut a = nalgebra::DMatrix::<f64>::zeros(2 * pairs.len(), 9);
-    for (k, (p, q)) in pairs.iter().enumerate() {
-        let p = ta * Vector3::new(p.x, p.y, 1.0);
-        let q = tb * Vector3::new(q.x, q.y, 1.0);
-        let (x, y, u, v) = (p.x, p.y, q.x, q.y);
-        a.row_mut(2 * k).copy_from_slice(&[-x, -y, -1.0, 0.0, 0.0, 0.0, u * x, u * y, u]);
-        a.row_mut(2 * k + 1).copy_from_slice(&[0.0, 0.0, 0.0, -x, -y, -1.0, v * x, v * y, v]);
-    }
-    // The null vector of A: the eigenvector of A^T A with the smallest eigenvalue.
-    let ata = a.transpose() * &a;
-    let eig = ata.symmetric_eigen();
-    let h = eig.eigenvectors.column(eig.eigenvalues.imin());
-    let hn = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
-    let h = tb.try_inverse()? * hn * ta;
-    (h[(2, 2)].abs() > 1e-15).then(|| h / h[(2, 2)])
-}
+pub use outlet_protocol::math::fit_homography;

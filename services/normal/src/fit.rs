@@ -111,16 +111,7 @@ const LOCAL_TOLERANCE_SIGMAS: f64 = 0.05;
 /// Median of the absolute value of a standard normal variable.
 const HALF_NORMAL_MEDIAN: f64 = 0.674_489_750_196_08;
 
-/// Two unit vectors completing `n` to a right-handed basis `(e1, e2, n)`:
-/// `e1 = normalize(n × x)` (`n × y` when `n` is within 26 degrees of the x
-/// axis), `e2 = n × e1`; a wall facing the camera (`n = z`) gets `e1 = y`,
-/// `e2 = -x`. The same construction as `outlet_pose::tangent_basis`.
-pub fn tangent_basis(n: &Vector3<f64>) -> [Vector3<f64>; 2] {
-    let helper = if n.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
-    let e1 = n.cross(&helper).normalize();
-    let e2 = n.cross(&e1);
-    [e1, e2]
-}
+pub use outlet_protocol::math::tangent_basis;
 
 /// Fits the dominant plane of a stereo cloud (camera frame, metres): the wall.
 ///

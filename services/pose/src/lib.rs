@@ -118,13 +118,7 @@ pub struct OutletPose {
     pub rms_px: f64,
 }
 
-/// Two unit vectors completing `n` to a right-handed orthonormal basis.
-pub fn tangent_basis(n: &Vector3<f64>) -> [Vector3<f64>; 2] {
-    let helper = if n.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
-    let e1 = n.cross(&helper).normalize();
-    let e2 = n.cross(&e1);
-    [e1, e2]
-}
+pub use outlet_protocol::math::tangent_basis;
 
 /// Normalised undistorted coordinates of the pixels, each with its 2x2 inverse
 /// square-root covariance (whitening) from the pixel noise through the lens.

@@ -5,40 +5,13 @@
 
 use crate::Rays;
 use crate::lm::{self, Fit};
-use nalgebra::{DMatrix, Isometry3, Matrix3, Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point2, Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
 
-/// Homography from model (x, y) in metres to normalised image coordinates (DLT
-/// with Hartley normalisation).
+/// Homography from model (x, y) in metres to normalised image coordinates.
 fn homography(rays: &Rays) -> Option<Matrix3<f64>> {
-    let n = rays.model.len();
-    let norm = |pts: &[(f64, f64)]| -> Option<Matrix3<f64>> {
-        let (cx, cy) = pts.iter().fold((0.0, 0.0), |s, p| (s.0 + p.0, s.1 + p.1));
-        let (cx, cy) = (cx / n as f64, cy / n as f64);
-        let d = pts.iter().map(|p| ((p.0 - cx).powi(2) + (p.1 - cy).powi(2)).sqrt()).sum::<f64>() / n as f64;
-        (d > 1e-15).then(|| {
-            let s = std::f64::consts::SQRT_2 / d;
-            Matrix3::new(s, 0.0, -s * cx, 0.0, s, -s * cy, 0.0, 0.0, 1.0)
-        })
-    };
-    let src: Vec<(f64, f64)> = rays.model.iter().map(|p| (p.x, p.y)).collect();
-    let dst: Vec<(f64, f64)> = rays.xy.iter().map(|p| (p.x, p.y)).collect();
-    let (ta, tb) = (norm(&src)?, norm(&dst)?);
-    let mut a = DMatrix::<f64>::zeros(2 * n, 9);
-    for k in 0..n {
-        let p = ta * Vector3::new(src[k].0, src[k].1, 1.0);
-        let q = tb * Vector3::new(dst[k].0, dst[k].1, 1.0);
-        let (x, y, u, v) = (p.x, p.y, q.x, q.y);
-        for (c, val) in [-x, -y, -1.0, 0.0, 0.0, 0.0, u * x, u * y, u].into_iter().enumerate() {
-            a[(2 * k, c)] = val;
-        }
-        for (c, val) in [0.0, 0.0, 0.0, -x, -y, -1.0, v * x, v * y, v].into_iter().enumerate() {
-            a[(2 * k + 1, c)] = val;
-        }
-    }
-    let eig = (a.transpose() * &a).symmetric_eigen();
-    let h = eig.eigenvectors.column(eig.eigenvalues.imin());
-    let hn = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
-    Some(tb.try_inverse()? * hn * ta)
+    let pairs: Vec<_> =
+        rays.model.iter().zip(&rays.xy).map(|(p, q)| (Point2::new(p.x, p.y), Point2::new(q.x, q.y))).collect();
+    outlet_protocol::math::fit_homography(&pairs)
 }
 
 /// H ∝ [r1 r2 t]: the pose, rotation made orthonormal, in front of the camera.
