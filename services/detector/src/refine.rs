@@ -80,7 +80,7 @@ pub struct RefineParams {
 
 impl Default for RefineParams {
     fn default() -> Self {
-        Self { margin_mm: 1.8, iterations: 10, max_shift_px: 3.0, min_relative_contrast: 0.2 }
+        Self { margin_mm: 1.8, iterations: 10, max_shift_px: 3.0, min_relative_contrast: 0.12 }
     }
 }
 
