@@ -223,3 +223,52 @@ fn eval_writes_table_plot_and_pose_inputs_for_opencv() {
     let solved = summary["ippe"]["solved"].as_u64().expect("ippe ran");
     assert!(solved >= 1 && summary["ippe"]["rms_mm"].as_f64().is_some_and(|v| v.is_finite()));
 }
+
+#[test]
+fn a_batch_of_rendered_images_gives_exact_expected_counts() {
+    // 8 images each of two outlets and 8 without the sought one, all detected
+    // in one run through a manifest; every outlet is found with every hole
+    // within the paper's 5 px, and nothing is found where there is none.
+    let dir = tempfile::tempdir().expect("tmp");
+    let mut manifest = String::new();
+    let mut expected = Vec::new();
+    for scenario in ["orange2x1", "white2x2", "negative"] {
+        render(dir.path(), scenario, 8, 1000);
+        for i in 0..8 {
+            let stem = format!("{scenario}_{i:04}");
+            let t = truth(dir.path(), &stem);
+            let image =
+                Path::new(&image_of(dir.path(), &stem)).file_name().expect("name").to_string_lossy().into_owned();
+            manifest += &format!(
+                "{{\"image\": \"{image}\", \"camera\": \"{stem}.camera.yaml\", \"template\": \"{}\"}}\n",
+                t["search_template"].as_str().expect("sought")
+            );
+            expected.push(t);
+        }
+    }
+    let path = dir.path().join("batch.jsonl");
+    std::fs::write(&path, manifest).expect("manifest");
+    let out = outlet(&["detect", "--batch", path.to_str().expect("utf-8"), "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let records = lines(&out);
+    assert_eq!(records.len(), 24);
+    let (mut correct, mut false_alarms) = (0, 0);
+    for (r, t) in records.iter().zip(&expected) {
+        let found = r["found"].as_bool().unwrap_or(false);
+        let positive = !t["template"].is_null();
+        let within = |h: &Value, g: &Value| {
+            let d = |k: usize| h["pixel"][k].as_f64().unwrap_or(f64::NAN) - g["pixel"][k].as_f64().unwrap_or(f64::NAN);
+            (d(0).powi(2) + d(1).powi(2)).sqrt() <= 5.0
+        };
+        let all_within = r["holes"]
+            .as_array()
+            .zip(t["holes"].as_array())
+            .is_some_and(|(hs, gs)| hs.len() == gs.len() && hs.iter().zip(gs).all(|(h, g)| within(h, g)));
+        match (positive, found) {
+            (true, true) if all_within => correct += 1,
+            (_, true) => false_alarms += 1,
+            _ => {}
+        }
+    }
+    assert_eq!((correct, false_alarms), (16, 0), "correct detections and false alarms over 16 outlets, 8 negatives");
+}
