@@ -11,6 +11,7 @@ pub mod geometry;
 pub mod math;
 pub mod ply;
 pub mod truth;
+pub mod wire;
 
 pub use camera::{CameraError, CameraModel};
 pub use geometry::{HoleKind, OutletGeometry, TemplateHole};

@@ -1,11 +1,11 @@
 //! `outlet detect` (CONTRACT.md) and `outlet train`.
 
-use crate::templates;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use image::{Rgb, RgbImage};
 use nalgebra::Point2;
 use nalgebra::Vector3;
+use outlet::templates;
 use outlet_detector::candidates::find_candidates;
 use outlet_detector::descriptor::DescriptorParams;
 use outlet_detector::detect::{DetectReport, Detection, Detector, DetectorParams};

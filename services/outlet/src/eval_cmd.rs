@@ -96,7 +96,7 @@ pub fn eval(args: EvalArgs) -> Result<()> {
     let t0 = std::time::Instant::now();
     let mut detectors = HashMap::new();
     for name in ["2x1", "2x2"] {
-        detectors.insert(name, Detector::new(crate::templates::builtin(name)?, DetectorParams::default()));
+        detectors.insert(name, Detector::new(outlet::templates::builtin(name)?, DetectorParams::default()));
     }
     tracing::info!("templates ready in {:.0} ms", t0.elapsed().as_secs_f64() * 1e3);
     let jobs: Vec<(&str, usize)> = scenarios

@@ -4,7 +4,6 @@ mod detect_cmd;
 mod eval_cmd;
 mod font;
 mod render_cmd;
-mod templates;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
