@@ -39,6 +39,8 @@ pub enum TemplateError {
     Truncated { path: String, expected: u64, got: u64 },
     #[error("template {path} is corrupted: checksum {found:08x}, expected {expected:08x}")]
     Checksum { path: String, found: u32, expected: u32 },
+    #[error("template {name} cannot be encoded: {reason}")]
+    Encode { name: String, reason: String },
     #[error("template {path} cannot be decoded: {reason}")]
     Decode { path: String, reason: String },
     #[error("template {name}: {reason}")]
@@ -49,15 +51,16 @@ pub enum TemplateError {
 
 impl Template {
     /// The file's bytes: header (magic, version, payload length, CRC-32), then postcard.
-    pub fn to_bytes(&self) -> Vec<u8> {
-        let payload = postcard::to_stdvec(self).unwrap_or_default();
+    pub fn to_bytes(&self) -> Result<Vec<u8>, TemplateError> {
+        let payload = postcard::to_stdvec(self)
+            .map_err(|e| TemplateError::Encode { name: self.name.clone(), reason: e.to_string() })?;
         let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
         out.extend_from_slice(MAGIC);
         out.extend_from_slice(&TEMPLATE_FORMAT_VERSION.to_le_bytes());
         out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
         out.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
         out.extend_from_slice(&payload);
-        out
+        Ok(out)
     }
 
     /// Parses a template file's bytes; `path` names it in errors.
@@ -103,7 +106,7 @@ impl Template {
     }
 
     pub fn write(&self, path: &Path) -> Result<(), TemplateError> {
-        std::fs::write(path, self.to_bytes())
+        std::fs::write(path, self.to_bytes()?)
             .map_err(|source| TemplateError::Io { path: path.display().to_string(), source })
     }
 }

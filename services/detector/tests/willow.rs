@@ -55,7 +55,7 @@ fn a_template_trained_on_the_willow_photo_finds_its_outlet() {
     )
     .expect("training");
     // Through the file format, as `outlet train` and `outlet detect` would.
-    let template = Template::from_bytes(&template.to_bytes(), "willow.tpl").expect("round trip");
+    let template = Template::from_bytes(&template.to_bytes().expect("encode"), "willow.tpl").expect("round trip");
     let detector = Detector::new(template, DetectorParams::default());
     let report = detector.detect(&image, Some(&camera()));
     let found = report.detection.expect("the outlet is found");
