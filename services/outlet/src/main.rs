@@ -4,6 +4,7 @@ mod detect_cmd;
 mod eval_cmd;
 mod font;
 mod render_cmd;
+mod serve;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -27,6 +28,8 @@ enum Command {
     Train(detect_cmd::TrainArgs),
     /// Detection over rendered scenarios: the paper's Table I, timings, rates by view.
     Eval(eval_cmd::EvalArgs),
+    /// Run one of the sidecar's services on iceoryx2 shared memory.
+    Serve(serve::ServeArgs),
 }
 
 fn main() -> ExitCode {
@@ -41,6 +44,7 @@ fn main() -> ExitCode {
         Command::Detect(args) => detect_cmd::detect(args),
         Command::Train(args) => detect_cmd::train(args),
         Command::Eval(args) => eval_cmd::eval(args),
+        Command::Serve(args) => serve::serve(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
