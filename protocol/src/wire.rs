@@ -209,7 +209,22 @@ pub struct DetectionMsg {
     pub score: u32,
     pub reserved: u32,
     pub detect_ms: f64,
+    /// The frame's camera, so that a pose can be solved from this alone.
+    pub width: u32,
+    pub height: u32,
+    /// fx, fy, cx, cy (pixels) and plumb_bob k1, k2, p1, p2, k3.
+    pub intrinsics: [f64; 4],
+    pub distortion: [f64; 5],
     pub holes: [HoleMsg; MAX_HOLES],
+}
+
+impl DetectionMsg {
+    /// The camera the detection was made with.
+    pub fn camera(&self) -> Result<CameraModel, WireError> {
+        let [fx, fy, cx, cy] = self.intrinsics;
+        CameraModel::new(self.width, self.height, [fx, fy, cx, cy], self.distortion)
+            .map_err(|e| WireError::Intrinsics { frame_id: self.frame_id, reason: e.to_string() })
+    }
 }
 
 /// Hole positions and the outlet's pose for one frame.

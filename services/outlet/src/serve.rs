@@ -28,12 +28,22 @@ pub enum Service {
         #[arg(long, default_value = "2x1")]
         template: String,
     },
+    /// The pose service: detections and wall planes in, hole poses out.
+    Pose {
+        /// The template the detector uses (its hole geometry).
+        #[arg(long, default_value = "2x1")]
+        template: String,
+        /// A plane older or newer than this is not joined with a detection (ms).
+        #[arg(long, default_value_t = 200.0)]
+        max_plane_age_ms: f64,
+    },
 }
 
 pub fn serve(args: ServeArgs) -> Result<()> {
     match args.service {
         Service::Normal => serve_normal(),
         Service::Detector { template } => serve_detector(&template),
+        Service::Pose { template, max_plane_age_ms } => serve_pose(&template, max_plane_age_ms),
     }
 }
 
@@ -241,6 +251,10 @@ fn serve_detector(template: &str) -> Result<()> {
                     score: 0,
                     reserved: 0,
                     detect_ms: t.elapsed().as_secs_f64() * 1e3,
+                    width: camera.width,
+                    height: camera.height,
+                    intrinsics: [camera.fx, camera.fy, camera.cx, camera.cy],
+                    distortion: camera.distortion,
                     holes: [HoleMsg::default(); MAX_HOLES],
                 };
                 if let Some(d) = &report.detection {
@@ -274,5 +288,154 @@ fn serve_detector(template: &str) -> Result<()> {
     };
     waitset.wait_and_process(on_event).map_err(|e| anyhow::anyhow!("waiting: {e:?}")).context("detector")?;
     tracing::info!(?counters, "detector stops");
+    Ok(())
+}
+
+/// Detections ([`service::DETECTIONS`]) joined with the wall plane closest in
+/// time ([`service::PLANES`]) into hole poses ([`service::HOLE_POSES`]): the
+/// `plane` mode with a plane near enough in time, else `mono`.
+fn serve_pose(template: &str, max_plane_age_ms: f64) -> Result<()> {
+    use nalgebra::{Matrix3, Point2, Unit, Vector3};
+    use outlet_pose::{Mode, Observations, PlaneMeasurement, solve_mono, solve_plane};
+    use outlet_protocol::wire::HolePosesMsg;
+    let geometry = outlet::templates::load(template)?.geometry;
+    let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
+    let node = NodeBuilder::new().create::<ipc::Service>().map_err(|e| anyhow::anyhow!("iceoryx2 node: {e:?}"))?;
+    let open_events = |s: &str| {
+        node.service_builder(&name(s)?).event().open_or_create().map_err(|e| anyhow::anyhow!("{s} events: {e:?}"))
+    };
+    let detections = node
+        .service_builder(&name(service::DETECTIONS)?)
+        .publish_subscribe::<DetectionMsg>()
+        .open_or_create()
+        .map_err(|e| anyhow::anyhow!("detection service: {e:?}"))?;
+    let planes = node
+        .service_builder(&name(service::PLANES)?)
+        .publish_subscribe::<WallPlaneMsg>()
+        .open_or_create()
+        .map_err(|e| anyhow::anyhow!("plane service: {e:?}"))?;
+    let poses = node
+        .service_builder(&name(service::HOLE_POSES)?)
+        .publish_subscribe::<HolePosesMsg>()
+        .open_or_create()
+        .map_err(|e| anyhow::anyhow!("pose service: {e:?}"))?;
+    let (detection_events, plane_events, pose_events) =
+        (open_events(service::DETECTIONS)?, open_events(service::PLANES)?, open_events(service::HOLE_POSES)?);
+    let detection_sub = detections.subscriber_builder().create().map_err(|e| anyhow::anyhow!("subscriber: {e:?}"))?;
+    let plane_sub = planes.subscriber_builder().create().map_err(|e| anyhow::anyhow!("subscriber: {e:?}"))?;
+    let detection_listener =
+        detection_events.listener_builder().create().map_err(|e| anyhow::anyhow!("listener: {e:?}"))?;
+    let plane_listener = plane_events.listener_builder().create().map_err(|e| anyhow::anyhow!("listener: {e:?}"))?;
+    let publisher = poses.publisher_builder().create().map_err(|e| anyhow::anyhow!("publisher: {e:?}"))?;
+    let notifier = pose_events.notifier_builder().create().map_err(|e| anyhow::anyhow!("notifier: {e:?}"))?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| anyhow::anyhow!("waitset: {e:?}"))?;
+    let detection_guard =
+        waitset.attach_notification(&detection_listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
+    let plane_guard = waitset.attach_notification(&plane_listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
+    // The last few planes, to join each detection with the one closest in time.
+    let mut recent: std::collections::VecDeque<WallPlaneMsg> = std::collections::VecDeque::with_capacity(16);
+    let mut counters = Counters::default();
+    tracing::info!("pose service ready ({template})");
+    let on_event = |id: WaitSetAttachmentId<ipc::Service>| {
+        if id.has_event_from(&plane_guard) {
+            let _ = plane_listener.try_wait(|_| {});
+            while let Ok(Some(p)) = plane_sub.receive() {
+                let p = *p.payload();
+                if p.schema_version == SCHEMA_VERSION && p.normal.iter().chain([&p.distance_m]).all(|v| v.is_finite()) {
+                    if recent.len() == 16 {
+                        recent.pop_front();
+                    }
+                    recent.push_back(p);
+                } else {
+                    counters.rejected += 1;
+                    tracing::warn!(frame = p.frame_id, "plane rejected: wrong schema or not finite");
+                }
+            }
+        }
+        if id.has_event_from(&detection_guard) {
+            let _ = detection_listener.try_wait(|_| {});
+            while let Ok(Some(d)) = detection_sub.receive() {
+                let d = *d.payload();
+                counters.inputs += 1;
+                if d.schema_version != SCHEMA_VERSION || d.hole_count as usize != model.len() {
+                    continue; // no outlet in that frame (or another template's)
+                }
+                let camera = match d.camera() {
+                    Ok(c) => c,
+                    Err(e) => {
+                        counters.rejected += 1;
+                        tracing::warn!("detection rejected: {e}");
+                        continue;
+                    }
+                };
+                let pixels: Vec<Point2<f64>> =
+                    d.holes[..model.len()].iter().map(|h| Point2::new(h.pixel[0], h.pixel[1])).collect();
+                let obs = Observations { model_mm: &model, pixels: &pixels, camera: &camera, pixel_sigma: 0.25 };
+                let plane = recent
+                    .iter()
+                    .min_by_key(|p| p.capture_time_ns.abs_diff(d.capture_time_ns))
+                    .filter(|p| (p.capture_time_ns.abs_diff(d.capture_time_ns) as f64) / 1e6 <= max_plane_age_ms);
+                let solved = match plane {
+                    Some(p) => {
+                        let measurement = PlaneMeasurement {
+                            normal: Unit::new_normalize(Vector3::from(p.normal)),
+                            distance_m: p.distance_m,
+                            covariance: Matrix3::from_row_slice(&p.covariance),
+                            tangent: p.tangent.map(Vector3::from),
+                            face_offset_m: geometry.face_offset_mm / 1000.0,
+                        };
+                        solve_plane(&obs, &measurement)
+                    }
+                    None => solve_mono(&obs),
+                };
+                let pose = match solved {
+                    Ok(p) => p,
+                    Err(e) => {
+                        counters.rejected += 1;
+                        tracing::warn!(frame = d.frame_id, "no pose: {e}");
+                        continue;
+                    }
+                };
+                let r = pose.pose.rotation.to_rotation_matrix();
+                let t = pose.pose.translation.vector;
+                let mut msg = HolePosesMsg {
+                    schema_version: SCHEMA_VERSION,
+                    hole_count: pose.holes_cam_m.len().min(MAX_HOLES) as u32,
+                    frame_id: d.frame_id,
+                    capture_time_ns: d.capture_time_ns,
+                    published_ns: std::time::SystemTime::now()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .map_or(0, |x| x.as_nanos() as u64),
+                    mode: match pose.mode {
+                        Mode::Mono => 1,
+                        Mode::Normal => 2,
+                        Mode::Plane => 3,
+                    },
+                    reserved: 0,
+                    rotation: std::array::from_fn(|k| r[(k / 3, k % 3)]),
+                    translation_m: [t.x, t.y, t.z],
+                    positions_m: [[0.0; 3]; MAX_HOLES],
+                    covariances_m2: [[0.0; 9]; MAX_HOLES],
+                };
+                for (k, (h, c)) in pose.holes_cam_m.iter().zip(&pose.covariances).take(MAX_HOLES).enumerate() {
+                    msg.positions_m[k] = [h.x, h.y, h.z];
+                    msg.covariances_m2[k] = std::array::from_fn(|j| c[(j / 3, j % 3)]);
+                }
+                match publisher.loan_uninit() {
+                    Ok(s) => match s.write_payload(msg).send() {
+                        Ok(_) => {
+                            counters.outputs += 1;
+                            let _ = notifier.notify();
+                        }
+                        Err(e) => tracing::warn!("publishing hole poses: {e:?}"),
+                    },
+                    Err(e) => tracing::warn!("publishing hole poses: {e:?}"),
+                }
+            }
+        }
+        CallbackProgression::Continue
+    };
+    waitset.wait_and_process(on_event).map_err(|e| anyhow::anyhow!("waiting: {e:?}")).context("pose service")?;
+    tracing::info!(?counters, "pose service stops");
     Ok(())
 }
