@@ -59,6 +59,59 @@ fn name(s: &str) -> Result<ServiceName> {
     ServiceName::new(s).map_err(|e| anyhow::anyhow!("service name {s:?}: {e:?}"))
 }
 
+/// An output: a publisher and the notifier that wakes its readers.
+struct Output<T: std::fmt::Debug + ZeroCopySend + 'static> {
+    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, T, ()>,
+    notifier: iceoryx2::port::notifier::Notifier<ipc::Service>,
+}
+
+impl<T: std::fmt::Debug + ZeroCopySend + 'static> Output<T> {
+    fn open(node: &Node<ipc::Service>, service_name: &str) -> Result<Self> {
+        let service = node
+            .service_builder(&name(service_name)?)
+            .publish_subscribe::<T>()
+            .open_or_create()
+            .map_err(|e| anyhow::anyhow!("{service_name}: {e:?}"))?;
+        let events = node
+            .service_builder(&name(service_name)?)
+            .event()
+            .open_or_create()
+            .map_err(|e| anyhow::anyhow!("{service_name} events: {e:?}"))?;
+        Ok(Self {
+            publisher: service.publisher_builder().create().map_err(|e| anyhow::anyhow!("publisher: {e:?}"))?,
+            notifier: events.notifier_builder().create().map_err(|e| anyhow::anyhow!("notifier: {e:?}"))?,
+        })
+    }
+
+    /// Publishes and notifies; a failure is logged, the service goes on.
+    fn send(&self, msg: T, counters: &mut Counters) {
+        let sent = match self.publisher.loan_uninit() {
+            Ok(s) => s.write_payload(msg).send().map_err(|e| format!("{e:?}")),
+            Err(e) => Err(format!("{e:?}")),
+        };
+        match sent {
+            Ok(_) => {
+                counters.outputs += 1;
+                if let Err(e) = self.notifier.notify() {
+                    tracing::warn!("notifying readers: {e:?}");
+                }
+            }
+            Err(e) => tracing::warn!("publishing: {e}"),
+        }
+    }
+}
+
+/// The listener of a service's notifications.
+fn listener(node: &Node<ipc::Service>, service_name: &str) -> Result<iceoryx2::port::listener::Listener<ipc::Service>> {
+    node.service_builder(&name(service_name)?)
+        .event()
+        .open_or_create()
+        .map_err(|e| anyhow::anyhow!("{service_name} events: {e:?}"))?
+        .listener_builder()
+        .create()
+        .map_err(|e| anyhow::anyhow!("{service_name} listener: {e:?}"))
+}
+
 /// Clouds in ([`service::CLOUDS`]), wall planes out ([`service::PLANES`]).
 fn serve_normal() -> Result<()> {
     let node = NodeBuilder::new().create::<ipc::Service>().map_err(|e| anyhow::anyhow!("iceoryx2 node: {e:?}"))?;
@@ -68,25 +121,9 @@ fn serve_normal() -> Result<()> {
         .user_header::<CloudHeader>()
         .open_or_create()
         .map_err(|e| anyhow::anyhow!("cloud service: {e:?}"))?;
-    let cloud_events = node
-        .service_builder(&name(service::CLOUDS)?)
-        .event()
-        .open_or_create()
-        .map_err(|e| anyhow::anyhow!("cloud events: {e:?}"))?;
-    let planes = node
-        .service_builder(&name(service::PLANES)?)
-        .publish_subscribe::<WallPlaneMsg>()
-        .open_or_create()
-        .map_err(|e| anyhow::anyhow!("plane service: {e:?}"))?;
-    let plane_events = node
-        .service_builder(&name(service::PLANES)?)
-        .event()
-        .open_or_create()
-        .map_err(|e| anyhow::anyhow!("plane events: {e:?}"))?;
     let subscriber = clouds.subscriber_builder().create().map_err(|e| anyhow::anyhow!("subscriber: {e:?}"))?;
-    let listener = cloud_events.listener_builder().create().map_err(|e| anyhow::anyhow!("listener: {e:?}"))?;
-    let publisher = planes.publisher_builder().create().map_err(|e| anyhow::anyhow!("publisher: {e:?}"))?;
-    let notifier = plane_events.notifier_builder().create().map_err(|e| anyhow::anyhow!("notifier: {e:?}"))?;
+    let listener = listener(&node, service::CLOUDS)?;
+    let output = Output::<WallPlaneMsg>::open(&node, service::PLANES)?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| anyhow::anyhow!("waitset: {e:?}"))?;
     let guard = waitset.attach_notification(&listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
     let params = PlaneParams::default();
@@ -137,17 +174,7 @@ fn serve_normal() -> Result<()> {
                                 c[(2, 2)],
                             ],
                         };
-                        let sent = match publisher.loan_uninit() {
-                            Ok(s) => s.write_payload(msg).send().map_err(|e| format!("{e:?}")),
-                            Err(e) => Err(format!("{e:?}")),
-                        };
-                        match sent {
-                            Ok(_) => {
-                                counters.outputs += 1;
-                                let _ = notifier.notify();
-                            }
-                            Err(e) => tracing::warn!("publishing a plane: {e}"),
-                        }
+                        output.send(msg, &mut counters);
                     }
                     Err(reason) => {
                         counters.rejected += 1;
@@ -188,25 +215,9 @@ fn serve_detector(template: &str) -> Result<()> {
         .user_header::<FrameHeader>()
         .open_or_create()
         .map_err(|e| anyhow::anyhow!("frame service: {e:?}"))?;
-    let frame_events = node
-        .service_builder(&name(service::FRAMES)?)
-        .event()
-        .open_or_create()
-        .map_err(|e| anyhow::anyhow!("frame events: {e:?}"))?;
-    let detections = node
-        .service_builder(&name(service::DETECTIONS)?)
-        .publish_subscribe::<DetectionMsg>()
-        .open_or_create()
-        .map_err(|e| anyhow::anyhow!("detection service: {e:?}"))?;
-    let detection_events = node
-        .service_builder(&name(service::DETECTIONS)?)
-        .event()
-        .open_or_create()
-        .map_err(|e| anyhow::anyhow!("detection events: {e:?}"))?;
     let subscriber = frames.subscriber_builder().create().map_err(|e| anyhow::anyhow!("subscriber: {e:?}"))?;
-    let listener = frame_events.listener_builder().create().map_err(|e| anyhow::anyhow!("listener: {e:?}"))?;
-    let publisher = detections.publisher_builder().create().map_err(|e| anyhow::anyhow!("publisher: {e:?}"))?;
-    let notifier = detection_events.notifier_builder().create().map_err(|e| anyhow::anyhow!("notifier: {e:?}"))?;
+    let listener = listener(&node, service::FRAMES)?;
+    let output = Output::<DetectionMsg>::open(&node, service::DETECTIONS)?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| anyhow::anyhow!("waitset: {e:?}"))?;
     let guard = waitset.attach_notification(&listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
     let mut counters = Counters::default();
@@ -271,17 +282,7 @@ fn serve_detector(template: &str) -> Result<()> {
                         };
                     }
                 }
-                let sent = match publisher.loan_uninit() {
-                    Ok(s) => s.write_payload(msg).send().map_err(|e| format!("{e:?}")),
-                    Err(e) => Err(format!("{e:?}")),
-                };
-                match sent {
-                    Ok(_) => {
-                        counters.outputs += 1;
-                        let _ = notifier.notify();
-                    }
-                    Err(e) => tracing::warn!("publishing a detection: {e}"),
-                }
+                output.send(msg, &mut counters);
             }
         }
         CallbackProgression::Continue
@@ -301,9 +302,6 @@ fn serve_pose(template: &str, max_plane_age_ms: f64) -> Result<()> {
     let geometry = outlet::templates::load(template)?.geometry;
     let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
     let node = NodeBuilder::new().create::<ipc::Service>().map_err(|e| anyhow::anyhow!("iceoryx2 node: {e:?}"))?;
-    let open_events = |s: &str| {
-        node.service_builder(&name(s)?).event().open_or_create().map_err(|e| anyhow::anyhow!("{s} events: {e:?}"))
-    };
     let detections = node
         .service_builder(&name(service::DETECTIONS)?)
         .publish_subscribe::<DetectionMsg>()
@@ -314,20 +312,11 @@ fn serve_pose(template: &str, max_plane_age_ms: f64) -> Result<()> {
         .publish_subscribe::<WallPlaneMsg>()
         .open_or_create()
         .map_err(|e| anyhow::anyhow!("plane service: {e:?}"))?;
-    let poses = node
-        .service_builder(&name(service::HOLE_POSES)?)
-        .publish_subscribe::<HolePosesMsg>()
-        .open_or_create()
-        .map_err(|e| anyhow::anyhow!("pose service: {e:?}"))?;
-    let (detection_events, plane_events, pose_events) =
-        (open_events(service::DETECTIONS)?, open_events(service::PLANES)?, open_events(service::HOLE_POSES)?);
     let detection_sub = detections.subscriber_builder().create().map_err(|e| anyhow::anyhow!("subscriber: {e:?}"))?;
     let plane_sub = planes.subscriber_builder().create().map_err(|e| anyhow::anyhow!("subscriber: {e:?}"))?;
-    let detection_listener =
-        detection_events.listener_builder().create().map_err(|e| anyhow::anyhow!("listener: {e:?}"))?;
-    let plane_listener = plane_events.listener_builder().create().map_err(|e| anyhow::anyhow!("listener: {e:?}"))?;
-    let publisher = poses.publisher_builder().create().map_err(|e| anyhow::anyhow!("publisher: {e:?}"))?;
-    let notifier = pose_events.notifier_builder().create().map_err(|e| anyhow::anyhow!("notifier: {e:?}"))?;
+    let detection_listener = listener(&node, service::DETECTIONS)?;
+    let plane_listener = listener(&node, service::PLANES)?;
+    let output = Output::<HolePosesMsg>::open(&node, service::HOLE_POSES)?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| anyhow::anyhow!("waitset: {e:?}"))?;
     let detection_guard =
         waitset.attach_notification(&detection_listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
@@ -421,16 +410,7 @@ fn serve_pose(template: &str, max_plane_age_ms: f64) -> Result<()> {
                     msg.positions_m[k] = [h.x, h.y, h.z];
                     msg.covariances_m2[k] = std::array::from_fn(|j| c[(j / 3, j % 3)]);
                 }
-                match publisher.loan_uninit() {
-                    Ok(s) => match s.write_payload(msg).send() {
-                        Ok(_) => {
-                            counters.outputs += 1;
-                            let _ = notifier.notify();
-                        }
-                        Err(e) => tracing::warn!("publishing hole poses: {e:?}"),
-                    },
-                    Err(e) => tracing::warn!("publishing hole poses: {e:?}"),
-                }
+                output.send(msg, &mut counters);
             }
         }
         CallbackProgression::Continue

@@ -1,35 +1,17 @@
 //! The three services as real processes: a rendered frame and its stereo cloud
 //! go in through shared memory, hole poses come out, within 1 mm of the truth.
 
+mod common;
+
 use iceoryx2::prelude::*;
 use outlet_protocol::CameraModel;
 use outlet_protocol::wire::{CloudHeader, FrameHeader, HolePosesMsg, PixelFormat, SCHEMA_VERSION, service};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-
-/// Ends the services however the test ends.
-struct Services(Vec<Child>);
-
-impl Drop for Services {
-    fn drop(&mut self) {
-        for c in &mut self.0 {
-            let _ = c.kill();
-            let _ = c.wait();
-        }
-    }
-}
-
-fn start(args: &[&str]) -> std::io::Result<Child> {
-    Command::new(env!("CARGO_BIN_EXE_outlet")).args(args).stdout(Stdio::null()).stderr(Stdio::null()).spawn()
-}
 
 #[test]
 fn frames_and_clouds_in_hole_poses_out_under_a_millimetre() -> Result<(), Box<dyn std::error::Error>> {
-    let mut services = Services(vec![
-        start(&["serve", "detector", "--template", "2x1"])?,
-        start(&["serve", "normal"])?,
-        start(&["serve", "pose", "--template", "2x1"])?,
-    ]);
+    let mut services =
+        common::Services::start(&[&["detector", "--template", "2x1"], &["normal"], &["pose", "--template", "2x1"]])?;
     let camera = CameraModel::default_vga();
     let seed = (0..100)
         .find(|&s| {
@@ -68,9 +50,7 @@ fn frames_and_clouds_in_hole_poses_out_under_a_millimetre() -> Result<(), Box<dy
     let mut id = 0u64;
     let pose = loop {
         assert!(start_time.elapsed() < Duration::from_secs(40), "no plane-mode hole poses from the pipeline");
-        for c in &mut services.0 {
-            assert!(c.try_wait()?.is_none(), "a service died");
-        }
+        assert!(services.all_running(), "a service died");
         id += 1;
         let stamp = id * 1_000_000;
         // The cloud first: the pose service joins a detection with the plane closest in time.

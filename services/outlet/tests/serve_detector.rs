@@ -2,31 +2,16 @@
 //! detections out; frames with a zero width or an unknown pixel format are
 //! rejected and the service goes on.
 
+mod common;
+
 use iceoryx2::prelude::*;
 use outlet_protocol::CameraModel;
 use outlet_protocol::wire::{DetectionMsg, FrameHeader, PixelFormat, service};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-
-/// Ends the service however the test ends.
-struct Service(Child);
-
-impl Drop for Service {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 #[test]
 fn frames_in_detections_out_and_bad_frames_are_rejected() -> Result<(), Box<dyn std::error::Error>> {
-    let mut child = Service(
-        Command::new(env!("CARGO_BIN_EXE_outlet"))
-            .args(["serve", "detector", "--template", "2x1"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()?,
-    );
+    let mut services = common::Services::start(&[&["detector", "--template", "2x1"]])?;
     let camera = CameraModel::default_vga();
     let seed = (0..100)
         .find(|&s| {
@@ -75,7 +60,7 @@ fn frames_in_detections_out_and_bad_frames_are_rejected() -> Result<(), Box<dyn 
     let start = Instant::now();
     let first = loop {
         assert!(start.elapsed() < Duration::from_secs(30), "no detection from the service");
-        assert!(child.0.try_wait()?.is_none(), "the service died");
+        assert!(services.all_running(), "the service died");
         send(good(1))?;
         if let Some(d) = next(Duration::from_millis(500))? {
             break d;
@@ -93,6 +78,6 @@ fn frames_in_detections_out_and_bad_frames_are_rejected() -> Result<(), Box<dyn 
     send(good(4))?;
     let after = next(Duration::from_secs(5))?.ok_or("no detection after the bad frames")?;
     assert_eq!(after.frame_id, 4, "the bad frames gave nothing");
-    assert!(child.0.try_wait()?.is_none(), "the service keeps running");
+    assert!(services.all_running(), "the service keeps running");
     Ok(())
 }

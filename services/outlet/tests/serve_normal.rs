@@ -1,31 +1,16 @@
 //! `outlet serve normal` as a real process: clouds in through shared memory,
 //! wall planes out; an all-NaN cloud is rejected and the service goes on.
 
+mod common;
+
 use iceoryx2::prelude::*;
 use outlet_protocol::CameraModel;
 use outlet_protocol::wire::{CloudHeader, SCHEMA_VERSION, WallPlaneMsg, service};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-
-/// Ends the service however the test ends.
-struct Service(Child);
-
-impl Drop for Service {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 #[test]
 fn clouds_in_planes_out_and_bad_clouds_are_rejected() -> Result<(), Box<dyn std::error::Error>> {
-    let mut child = Service(
-        Command::new(env!("CARGO_BIN_EXE_outlet"))
-            .args(["serve", "normal"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()?,
-    );
+    let mut services = common::Services::start(&[&["normal"]])?;
     let scene = outlet_sim::sample_scene("white2x2", 5, 0, &CameraModel::default_vga())?;
     let frame = outlet_sim::render_frame(&scene, "x");
     let flat: Vec<f32> = frame.cloud.iter().flatten().copied().collect();
@@ -71,7 +56,7 @@ fn clouds_in_planes_out_and_bad_clouds_are_rejected() -> Result<(), Box<dyn std:
     let start = Instant::now();
     let first = loop {
         assert!(start.elapsed() < Duration::from_secs(20), "no plane from the service");
-        assert!(child.0.try_wait()?.is_none(), "the service died");
+        assert!(services.all_running(), "the service died");
         send(1, &flat)?;
         if let Some(p) = next_plane(Duration::from_millis(300))? {
             break p;
@@ -88,6 +73,6 @@ fn clouds_in_planes_out_and_bad_clouds_are_rejected() -> Result<(), Box<dyn std:
     send(3, &flat)?;
     let after = next_plane(Duration::from_secs(5))?.ok_or("no plane after the bad cloud")?;
     assert_eq!(after.frame_id, 3, "the all-NaN cloud gave no plane");
-    assert!(child.0.try_wait()?.is_none(), "the service keeps running");
+    assert!(services.all_running(), "the service keeps running");
     Ok(())
 }
