@@ -10,6 +10,7 @@ pub mod camera_info;
 pub mod geometry;
 pub mod math;
 pub mod ply;
+pub mod shm;
 pub mod truth;
 pub mod wire;
 

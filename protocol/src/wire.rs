@@ -20,6 +20,12 @@ pub mod service {
     pub const DETECTIONS: &str = "outlet/detector/detections";
     /// Hole poses: [`super::HolePosesMsg`].
     pub const HOLE_POSES: &str = "outlet/pose/holes";
+    /// Every service's heartbeat: [`super::HeartbeatMsg`], one publisher per service.
+    pub const HEARTBEAT: &str = "outlet/heartbeat";
+    /// Each service's resolved configuration, postcard-encoded `[u8]`.
+    pub const CONFIG: &str = "outlet/config";
+    /// The simulated camera's ground truth: [`super::TruthMsg`].
+    pub const TRUTH: &str = "outlet/sim/truth";
 }
 
 /// Holes a message carries at most (a 2x2 has 12).
@@ -69,6 +75,8 @@ pub enum WireError {
     Intrinsics { frame_id: u64, reason: String },
     #[error("cloud {frame_id}: header says {claimed} points, payload holds {got}")]
     CloudSize { frame_id: u64, claimed: u64, got: usize },
+    #[error("result for frame {frame_id}: {reason}")]
+    Result { frame_id: u64, reason: &'static str },
 }
 
 /// The header of a camera frame; the pixels follow as the sample's `[u8]` payload,
@@ -244,10 +252,137 @@ pub struct HolePosesMsg {
     /// Outlet to camera: row-major rotation, translation (m).
     pub rotation: [f64; 9],
     pub translation_m: [f64; 3],
+    /// 1 power, 2 ground, per hole.
+    pub kinds: [u32; MAX_HOLES],
     /// Camera frame, metres, template order.
     pub positions_m: [[f64; 3]; MAX_HOLES],
     /// Row-major 3x3 covariance per hole (m²).
     pub covariances_m2: [[f64; 9]; MAX_HOLES],
+}
+
+impl HolePosesMsg {
+    /// Whether the message is one this build can read, with finite positions.
+    pub fn validate(&self) -> Result<(), WireError> {
+        if self.schema_version != SCHEMA_VERSION {
+            return Err(WireError::Schema { found: self.schema_version, expected: SCHEMA_VERSION });
+        }
+        let n = self.hole_count as usize;
+        if n > MAX_HOLES || !self.positions_m[..n].iter().flatten().all(|v| v.is_finite()) {
+            return Err(WireError::Result { frame_id: self.frame_id, reason: "hole count or positions invalid" });
+        }
+        Ok(())
+    }
+}
+
+/// A fixed-size, NUL-padded text field.
+fn text<const N: usize>(s: &str) -> [u8; N] {
+    let mut out = [0u8; N];
+    // Cut at a character boundary so the field stays valid UTF-8.
+    let mut end = s.len().min(N);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    out[..end].copy_from_slice(&s.as_bytes()[..end]);
+    out
+}
+
+fn text_str(bytes: &[u8]) -> &str {
+    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
+    match std::str::from_utf8(&bytes[..end]) {
+        Ok(s) => s,
+        Err(e) => std::str::from_utf8(&bytes[..e.valid_up_to()]).unwrap_or(""),
+    }
+}
+
+/// A service's health, published periodically: what came in, what went out,
+/// what was refused, and how long it took over the last period.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("outlet::HeartbeatMsg")]
+pub struct HeartbeatMsg {
+    pub schema_version: u32,
+    pub pid: u32,
+    /// The service's name (`detector`, `normal`, `pose`, `sim-camera`), NUL-padded.
+    pub service: [u8; 16],
+    pub sequence: u64,
+    /// Nanoseconds since the Unix epoch.
+    pub published_ns: u64,
+    pub started_ns: u64,
+    /// Totals since the service started.
+    pub inputs: u64,
+    pub outputs: u64,
+    pub rejected: u64,
+    /// Inputs skipped because a newer one was already waiting.
+    pub dropped: u64,
+    /// Rates over the last period (Hz).
+    pub input_rate_hz: f64,
+    pub output_rate_hz: f64,
+    /// Capture to publish over the last period (ms); NaN when nothing went out.
+    pub latency_p50_ms: f64,
+    pub latency_p99_ms: f64,
+    pub latency_max_ms: f64,
+    /// The service's own work per input over the last period (ms).
+    pub work_p50_ms: f64,
+    pub work_p99_ms: f64,
+    /// When the last output went out (ns since the Unix epoch, 0 never).
+    pub last_output_ns: u64,
+    /// Why the last input was refused, NUL-padded.
+    pub last_rejection: [u8; 120],
+}
+
+impl HeartbeatMsg {
+    pub fn new(service: &str, pid: u32, started_ns: u64) -> Self {
+        Self {
+            schema_version: SCHEMA_VERSION,
+            pid,
+            service: text(service),
+            sequence: 0,
+            published_ns: 0,
+            started_ns,
+            inputs: 0,
+            outputs: 0,
+            rejected: 0,
+            dropped: 0,
+            input_rate_hz: 0.0,
+            output_rate_hz: 0.0,
+            latency_p50_ms: f64::NAN,
+            latency_p99_ms: f64::NAN,
+            latency_max_ms: f64::NAN,
+            work_p50_ms: f64::NAN,
+            work_p99_ms: f64::NAN,
+            last_output_ns: 0,
+            last_rejection: [0; 120],
+        }
+    }
+
+    pub fn service_name(&self) -> &str {
+        text_str(&self.service)
+    }
+
+    pub fn last_rejection(&self) -> &str {
+        text_str(&self.last_rejection)
+    }
+
+    pub fn set_last_rejection(&mut self, reason: &str) {
+        self.last_rejection = text(reason);
+    }
+}
+
+/// What the simulated camera rendered: the holes where they really are.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("outlet::TruthMsg")]
+pub struct TruthMsg {
+    pub schema_version: u32,
+    /// 0 when the frame shows no outlet of the template.
+    pub hole_count: u32,
+    pub frame_id: u64,
+    pub capture_time_ns: u64,
+    /// Camera frame, metres, template order.
+    pub positions_m: [[f64; 3]; MAX_HOLES],
+    /// Outlet to camera: row-major rotation, translation (m).
+    pub rotation: [f64; 9],
+    pub translation_m: [f64; 3],
 }
 
 #[cfg(test)]
@@ -281,5 +416,15 @@ mod tests {
         assert!(c.validate(30).is_ok());
         assert!(c.validate(29).is_err());
         assert!(CloudHeader { points: u64::MAX, ..c }.validate(30).is_err());
+    }
+
+    #[test]
+    fn heartbeat_text_fields_round_trip_and_truncate_at_a_character() {
+        let mut h = HeartbeatMsg::new("detector", 1, 0);
+        assert_eq!(h.service_name(), "detector");
+        let long = "é".repeat(100);
+        h.set_last_rejection(&long);
+        assert_eq!(h.last_rejection(), "é".repeat(60));
+        assert_eq!(HeartbeatMsg::new("a-very-long-service-name", 1, 0).service_name(), "a-very-long-serv");
     }
 }

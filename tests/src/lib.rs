@@ -1,1 +1,148 @@
-//! Helpers for the tests that span crates and processes.
+//! Helpers for the tests that span crates and processes: the `outlet`
+//! executable, and a sidecar of service processes that a test can kill and
+//! restart one by one.
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+/// The `outlet` executable of this build profile, built on first use (cargo
+/// builds only this package's targets for its tests).
+pub fn outlet_exe() -> Result<PathBuf, String> {
+    static EXE: OnceLock<Result<PathBuf, String>> = OnceLock::new();
+    EXE.get_or_init(|| {
+        let test_exe = std::env::current_exe().map_err(|e| e.to_string())?;
+        // target/<profile>/deps/<test> -> target/<profile>
+        let profile_dir = test_exe.parent().and_then(|d| d.parent()).ok_or("no target directory")?.to_path_buf();
+        let target_dir = profile_dir.parent().ok_or("no target directory")?;
+        let profile = profile_dir.file_name().and_then(|n| n.to_str()).ok_or("no profile")?;
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let mut build = Command::new(cargo);
+        build.args(["build", "--quiet", "-p", "outlet", "--bin", "outlet", "--target-dir"]).arg(target_dir);
+        if profile != "debug" {
+            build.args(["--profile", if profile == "release" { "release" } else { profile }]);
+        }
+        let status = build.status().map_err(|e| format!("running cargo build: {e}"))?;
+        if !status.success() {
+            return Err(format!("cargo build -p outlet failed: {status}"));
+        }
+        Ok(profile_dir.join("outlet"))
+    })
+    .clone()
+}
+
+/// A shared-memory domain for one test alone.
+pub fn domain(test: &str) -> String {
+    format!("{test}-{}", std::process::id())
+}
+
+/// Service processes of one domain, by name; killed when dropped.
+pub struct Sidecar {
+    pub domain: String,
+    pub logs: PathBuf,
+    children: Vec<(String, Vec<String>, Child)>,
+}
+
+impl Sidecar {
+    pub fn new(domain: &str) -> std::io::Result<Self> {
+        let logs = std::env::temp_dir().join(format!("outlet-test-{domain}"));
+        std::fs::create_dir_all(&logs)?;
+        Ok(Self { domain: domain.into(), logs, children: Vec::new() })
+    }
+
+    /// Starts `outlet serve --domain D <service> <args>`; its log goes to `logs/<service>.log`.
+    pub fn start(&mut self, service: &str, args: &[&str]) -> Result<(), String> {
+        let exe = outlet_exe()?;
+        let log = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(self.log_path(service))
+            .map_err(|e| e.to_string())?;
+        let child = Command::new(exe)
+            .args(["serve", "--domain", &self.domain, "--heartbeat-ms", "200", service])
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .map_err(|e| format!("starting {service}: {e}"))?;
+        let args = args.iter().map(|a| a.to_string()).collect();
+        self.children.push((service.into(), args, child));
+        Ok(())
+    }
+
+    pub fn log_path(&self, service: &str) -> PathBuf {
+        self.logs.join(format!("{service}.log"))
+    }
+
+    pub fn pid(&self, service: &str) -> Option<u32> {
+        self.children.iter().find(|c| c.0 == service).map(|c| c.2.id())
+    }
+
+    /// SIGKILL: the service gets no chance to clean up after itself.
+    pub fn kill9(&mut self, service: &str) -> Result<Vec<String>, String> {
+        let k = self.children.iter().position(|c| c.0 == service).ok_or(format!("no {service}"))?;
+        let (_, args, mut child) = self.children.remove(k);
+        child.kill().map_err(|e| e.to_string())?;
+        child.wait().map_err(|e| e.to_string())?;
+        Ok(args)
+    }
+
+    /// The name of a service that is no longer running, if any.
+    pub fn dead(&mut self) -> Option<String> {
+        self.children.iter_mut().find_map(|c| (!matches!(c.2.try_wait(), Ok(None))).then(|| c.0.clone()))
+    }
+}
+
+impl Drop for Sidecar {
+    /// SIGTERM, so that each service removes its shared memory; SIGKILL after 3 s.
+    fn drop(&mut self) {
+        use nix::sys::signal::{Signal, kill};
+        for (_, _, c) in &self.children {
+            if let Ok(pid) = i32::try_from(c.id()) {
+                let _ = kill(nix::unistd::Pid::from_raw(pid), Signal::SIGTERM);
+            }
+        }
+        let deadline = Instant::now() + Duration::from_secs(3);
+        for (_, _, c) in &mut self.children {
+            while matches!(c.try_wait(), Ok(None)) && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+        outlet_protocol::shm::remove_node_counter(&self.domain);
+    }
+}
+
+/// The shared-memory files of a domain, with their permission bits.
+pub fn shm_files(domain: &str) -> Vec<(String, u32)> {
+    use std::os::unix::fs::PermissionsExt;
+    let prefix = format!("{domain}_");
+    let Ok(entries) = std::fs::read_dir("/dev/shm") else { return Vec::new() };
+    let mut files: Vec<(String, u32)> = entries
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().to_string();
+            let mode = e.metadata().ok()?.permissions().mode() & 0o777;
+            name.starts_with(&prefix).then_some((name, mode))
+        })
+        .collect();
+    files.sort();
+    files
+}
+
+/// Polls `f` until it gives a value or `timeout` passes.
+pub fn wait_for<T>(timeout: Duration, mut f: impl FnMut() -> Option<T>) -> Option<T> {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = f() {
+            return Some(v);
+        }
+        if start.elapsed() > timeout {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}

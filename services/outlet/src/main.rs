@@ -1,10 +1,12 @@
 //! `outlet`: the command line of the outlet perception sidecar.
 
+mod demo;
 mod detect_cmd;
 mod eval_cmd;
 mod font;
 mod render_cmd;
 mod serve;
+mod status;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -30,6 +32,10 @@ enum Command {
     Eval(eval_cmd::EvalArgs),
     /// Run one of the sidecar's services on iceoryx2 shared memory.
     Serve(serve::ServeArgs),
+    /// The whole sidecar on the simulated camera: each result with its error and latency.
+    Demo(demo::DemoArgs),
+    /// A live view of the running services: channel rates, latencies, rejected inputs.
+    Status(status::StatusArgs),
 }
 
 fn main() -> ExitCode {
@@ -45,6 +51,8 @@ fn main() -> ExitCode {
         Command::Train(args) => detect_cmd::train(args),
         Command::Eval(args) => eval_cmd::eval(args),
         Command::Serve(args) => serve::serve(args),
+        Command::Status(args) => status::status(args),
+        Command::Demo(args) => demo::demo(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

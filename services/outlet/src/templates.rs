@@ -18,9 +18,46 @@ const TRAINING_SEED: u64 = 2010;
 /// A built-in template by name, or a template file.
 pub fn load(name_or_path: &str) -> Result<Template> {
     match name_or_path {
-        "2x1" | "2x2" => builtin(name_or_path),
+        "2x1" | "2x2" => cached_builtin(name_or_path),
         path => Template::read(std::path::Path::new(path)).map_err(Into::into),
     }
+}
+
+/// Where this very executable keeps the built-in templates it trained: a
+/// restarted service is ready in milliseconds instead of a training run. The
+/// key changes with every build, so a cached template is never a stale one.
+fn cache_path(name: &str) -> Option<std::path::PathBuf> {
+    use std::hash::{Hash, Hasher};
+    let exe = std::env::current_exe().ok()?;
+    let meta = std::fs::metadata(&exe).ok()?;
+    let mut key = std::collections::hash_map::DefaultHasher::new();
+    (exe, meta.len(), meta.modified().ok()?, env!("CARGO_PKG_VERSION")).hash(&mut key);
+    let dir = std::env::var_os("XDG_CACHE_HOME")
+        .map(std::path::PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| std::path::PathBuf::from(h).join(".cache")))?
+        .join("outlet");
+    Some(dir.join(format!("{name}-{:016x}.template", key.finish())))
+}
+
+fn cached_builtin(name: &str) -> Result<Template> {
+    let Some(path) = cache_path(name) else { return builtin(name) };
+    if let Ok(t) = Template::read(&path) {
+        return Ok(t);
+    }
+    let template = builtin(name)?;
+    // Written aside, then renamed: a reader never sees half a file.
+    let partial = path.with_extension(format!("{}.partial", std::process::id()));
+    let saved = path
+        .parent()
+        .map_or(Ok(()), std::fs::create_dir_all)
+        .map_err(anyhow::Error::from)
+        .and_then(|()| template.write(&partial).map_err(Into::into))
+        .and_then(|()| std::fs::rename(&partial, &path).map_err(Into::into));
+    if let Err(e) = saved {
+        let _ = std::fs::remove_file(&partial);
+        tracing::debug!("built-in template not cached at {}: {e:#}", path.display());
+    }
+    Ok(template)
 }
 
 /// The views a built-in template learns from: (distance m, off-axis deg,

@@ -3,15 +3,18 @@
 
 mod common;
 
-use iceoryx2::prelude::*;
 use outlet_protocol::CameraModel;
+use outlet_protocol::shm;
 use outlet_protocol::wire::{CloudHeader, FrameHeader, HolePosesMsg, PixelFormat, SCHEMA_VERSION, service};
 use std::time::{Duration, Instant};
 
 #[test]
 fn frames_and_clouds_in_hole_poses_out_under_a_millimetre() -> Result<(), Box<dyn std::error::Error>> {
-    let mut services =
-        common::Services::start(&[&["detector", "--template", "2x1"], &["normal"], &["pose", "--template", "2x1"]])?;
+    let domain = common::domain("pipeline");
+    let mut services = common::Services::start(
+        &domain,
+        &[&["detector", "--template", "2x1"], &["normal"], &["pose", "--template", "2x1"]],
+    )?;
     let camera = CameraModel::default_vga();
     let seed = (0..100)
         .find(|&s| {
@@ -25,25 +28,14 @@ fn frames_and_clouds_in_hole_poses_out_under_a_millimetre() -> Result<(), Box<dy
     let pixels = frame.frame.image.as_raw();
     let cloud: Vec<f32> = frame.cloud.iter().flatten().copied().collect();
 
-    let node = NodeBuilder::new().create::<ipc::Service>()?;
-    let frames = node
-        .service_builder(&service::FRAMES.try_into()?)
-        .publish_subscribe::<[u8]>()
-        .user_header::<FrameHeader>()
-        .open_or_create()?;
-    let clouds = node
-        .service_builder(&service::CLOUDS.try_into()?)
-        .publish_subscribe::<[f32]>()
-        .user_header::<CloudHeader>()
-        .open_or_create()?;
-    let poses =
-        node.service_builder(&service::HOLE_POSES.try_into()?).publish_subscribe::<HolePosesMsg>().open_or_create()?;
+    let node = shm::node(&domain, "test")?;
+    let frames = shm::frames(&node)?;
+    let clouds = shm::clouds(&node)?;
+    let poses = shm::messages::<HolePosesMsg>(&node, service::HOLE_POSES)?;
     let frame_pub = frames.publisher_builder().initial_max_slice_len(pixels.len()).create()?;
     let cloud_pub = clouds.publisher_builder().initial_max_slice_len(cloud.len()).create()?;
-    let frame_note =
-        node.service_builder(&service::FRAMES.try_into()?).event().open_or_create()?.notifier_builder().create()?;
-    let cloud_note =
-        node.service_builder(&service::CLOUDS.try_into()?).event().open_or_create()?.notifier_builder().create()?;
+    let frame_note = shm::events(&node, service::FRAMES)?.notifier_builder().create()?;
+    let cloud_note = shm::events(&node, service::CLOUDS)?.notifier_builder().create()?;
     let pose_sub = poses.subscriber_builder().create()?;
 
     let start_time = Instant::now();

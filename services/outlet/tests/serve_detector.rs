@@ -4,14 +4,15 @@
 
 mod common;
 
-use iceoryx2::prelude::*;
 use outlet_protocol::CameraModel;
+use outlet_protocol::shm;
 use outlet_protocol::wire::{DetectionMsg, FrameHeader, PixelFormat, service};
 use std::time::{Duration, Instant};
 
 #[test]
 fn frames_in_detections_out_and_bad_frames_are_rejected() -> Result<(), Box<dyn std::error::Error>> {
-    let mut services = common::Services::start(&[&["detector", "--template", "2x1"]])?;
+    let domain = common::domain("servedetec");
+    let mut services = common::Services::start(&domain, &[&["detector", "--template", "2x1"]])?;
     let camera = CameraModel::default_vga();
     let seed = (0..100)
         .find(|&s| {
@@ -24,15 +25,10 @@ fn frames_in_detections_out_and_bad_frames_are_rejected() -> Result<(), Box<dyn 
     let frame = outlet_sim::render_frame(&scene, "x");
     let pixels = frame.frame.image.as_raw();
 
-    let node = NodeBuilder::new().create::<ipc::Service>()?;
-    let frames = node
-        .service_builder(&service::FRAMES.try_into()?)
-        .publish_subscribe::<[u8]>()
-        .user_header::<FrameHeader>()
-        .open_or_create()?;
-    let frame_events = node.service_builder(&service::FRAMES.try_into()?).event().open_or_create()?;
-    let detections =
-        node.service_builder(&service::DETECTIONS.try_into()?).publish_subscribe::<DetectionMsg>().open_or_create()?;
+    let node = shm::node(&domain, "test")?;
+    let frames = shm::frames(&node)?;
+    let frame_events = shm::events(&node, service::FRAMES)?;
+    let detections = shm::messages::<DetectionMsg>(&node, service::DETECTIONS)?;
     let publisher = frames.publisher_builder().initial_max_slice_len(pixels.len()).create()?;
     let notifier = frame_events.notifier_builder().create()?;
     let subscriber = detections.subscriber_builder().create()?;

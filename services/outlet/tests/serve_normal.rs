@@ -3,27 +3,23 @@
 
 mod common;
 
-use iceoryx2::prelude::*;
 use outlet_protocol::CameraModel;
+use outlet_protocol::shm;
 use outlet_protocol::wire::{CloudHeader, SCHEMA_VERSION, WallPlaneMsg, service};
 use std::time::{Duration, Instant};
 
 #[test]
 fn clouds_in_planes_out_and_bad_clouds_are_rejected() -> Result<(), Box<dyn std::error::Error>> {
-    let mut services = common::Services::start(&[&["normal"]])?;
+    let domain = common::domain("servenorma");
+    let mut services = common::Services::start(&domain, &[&["normal"]])?;
     let scene = outlet_sim::sample_scene("white2x2", 5, 0, &CameraModel::default_vga())?;
     let frame = outlet_sim::render_frame(&scene, "x");
     let flat: Vec<f32> = frame.cloud.iter().flatten().copied().collect();
 
-    let node = NodeBuilder::new().create::<ipc::Service>()?;
-    let clouds = node
-        .service_builder(&service::CLOUDS.try_into()?)
-        .publish_subscribe::<[f32]>()
-        .user_header::<CloudHeader>()
-        .open_or_create()?;
-    let cloud_events = node.service_builder(&service::CLOUDS.try_into()?).event().open_or_create()?;
-    let planes =
-        node.service_builder(&service::PLANES.try_into()?).publish_subscribe::<WallPlaneMsg>().open_or_create()?;
+    let node = shm::node(&domain, "test")?;
+    let clouds = shm::clouds(&node)?;
+    let cloud_events = shm::events(&node, service::CLOUDS)?;
+    let planes = shm::messages::<WallPlaneMsg>(&node, service::PLANES)?;
     let publisher = clouds.publisher_builder().initial_max_slice_len(flat.len()).create()?;
     let notifier = cloud_events.notifier_builder().create()?;
     let subscriber = planes.subscriber_builder().create()?;

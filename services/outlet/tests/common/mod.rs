@@ -3,23 +3,24 @@
 
 use std::process::{Child, Command, Stdio};
 
-pub struct Services(pub Vec<Child>);
+pub struct Services(pub Vec<Child>, String);
 
 impl Services {
-    /// Starts `outlet serve ...` once per argument list.
-    pub fn start(args: &[&[&str]]) -> std::io::Result<Self> {
+    /// Starts `outlet serve --domain DOMAIN ...` once per argument list.
+    pub fn start(domain: &str, args: &[&[&str]]) -> std::io::Result<Self> {
         let mut children = Vec::new();
         for a in args {
             children.push(
                 Command::new(env!("CARGO_BIN_EXE_outlet"))
                     .arg("serve")
+                    .args(["--domain", domain])
                     .args(*a)
                     .stdout(Stdio::null())
                     .stderr(Stdio::null())
                     .spawn()?,
             );
         }
-        Ok(Self(children))
+        Ok(Self(children, domain.to_string()))
     }
 
     /// True while every service is running.
@@ -29,10 +30,27 @@ impl Services {
 }
 
 impl Drop for Services {
+    /// SIGTERM, so that each service removes its shared memory; SIGKILL after 3 s.
     fn drop(&mut self) {
+        use nix::sys::signal::{Signal, kill};
+        for c in &self.0 {
+            if let Ok(pid) = i32::try_from(c.id()) {
+                let _ = kill(nix::unistd::Pid::from_raw(pid), Signal::SIGTERM);
+            }
+        }
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(3);
         for c in &mut self.0 {
+            while matches!(c.try_wait(), Ok(None)) && std::time::Instant::now() < deadline {
+                std::thread::sleep(std::time::Duration::from_millis(10));
+            }
             let _ = c.kill();
             let _ = c.wait();
         }
+        outlet_protocol::shm::remove_node_counter(&self.1);
     }
+}
+
+/// A shared-memory domain of this test process alone.
+pub fn domain(test: &str) -> String {
+    format!("{test}-{}", std::process::id())
 }

@@ -1,0 +1,328 @@
+//! The typed results: [`HolePoses`] with its [`Hole`]s, and [`Heartbeat`].
+
+use crate::error::Rejection;
+use outlet_protocol::HoleKind;
+use outlet_protocol::wire::{HeartbeatMsg, HolePosesMsg, SCHEMA_VERSION, WireError};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+/// The time `ns` nanoseconds after the Unix epoch.
+pub(crate) fn time_from_ns(ns: u64) -> SystemTime {
+    // u64 nanoseconds reach the year 2554, which SystemTime holds on every
+    // platform iceoryx2 runs on; fall back to the epoch rather than panic.
+    UNIX_EPOCH.checked_add(Duration::from_nanos(ns)).unwrap_or(UNIX_EPOCH)
+}
+
+/// What the pose was solved with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum PoseMode {
+    /// From the hole pixels alone (planar PnP).
+    Mono,
+    /// With a known wall normal (the paper's closed form).
+    Normal,
+    /// With the wall plane (normal and distance) fitted to the stereo cloud.
+    Plane,
+}
+
+impl PoseMode {
+    /// The mode of a wire code (1 mono, 2 normal, 3 plane).
+    pub fn from_code(code: u32) -> Option<Self> {
+        match code {
+            1 => Some(Self::Mono),
+            2 => Some(Self::Normal),
+            3 => Some(Self::Plane),
+            _ => None,
+        }
+    }
+
+    /// The wire code of the mode (1 mono, 2 normal, 3 plane).
+    pub fn code(self) -> u32 {
+        match self {
+            Self::Mono => 1,
+            Self::Normal => 2,
+            Self::Plane => 3,
+        }
+    }
+
+    /// `mono`, `normal` or `plane`, as `outlet detect --json` writes it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Mono => "mono",
+            Self::Normal => "normal",
+            Self::Plane => "plane",
+        }
+    }
+}
+
+/// One hole of the outlet.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hole {
+    /// What the hole receives.
+    pub kind: HoleKind,
+    /// Its centre on the receptacle face: camera frame, metres.
+    pub position_m: [f64; 3],
+    /// The covariance of `position_m` (camera frame, m²), rows then columns.
+    pub covariance_m2: [[f64; 3]; 3],
+}
+
+impl Hole {
+    /// The standard deviation of the position along the camera's x, y and z
+    /// axes (metres): the square roots of the covariance's diagonal.
+    pub fn std_dev_m(&self) -> [f64; 3] {
+        std::array::from_fn(|k| self.covariance_m2[k][k].max(0.0).sqrt())
+    }
+}
+
+/// The pose service's result for one frame: where the outlet and its holes are.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HolePoses {
+    /// The camera frame the result was computed from.
+    pub frame_id: u64,
+    /// When that frame was captured.
+    pub capture_time: SystemTime,
+    /// When the pose service published the result.
+    pub published: SystemTime,
+    /// When this client took it out of shared memory.
+    pub received: SystemTime,
+    /// What the pose was solved with.
+    pub mode: PoseMode,
+    /// The outlet's orientation: rotation from the outlet frame (`CONTRACT.md`)
+    /// to the camera frame, `rotation[row][column]`.
+    pub rotation: [[f64; 3]; 3],
+    /// The outlet frame's origin in the camera frame (metres).
+    pub translation_m: [f64; 3],
+    /// The holes, in the template's order.
+    pub holes: Vec<Hole>,
+}
+
+impl HolePoses {
+    /// Checks a message from shared memory and converts it; `received` is when it
+    /// was taken out. Refuses what [`HolePosesMsg::validate`] refuses (schema
+    /// version, hole count above [`MAX_HOLES`](outlet_protocol::wire::MAX_HOLES),
+    /// non-finite positions), unknown mode or hole kind codes, and a non-finite
+    /// rotation or translation. Covariances are passed on as they are.
+    pub fn from_msg(msg: &HolePosesMsg, received: SystemTime) -> Result<Self, Rejection> {
+        msg.validate()?;
+        let frame_id = msg.frame_id;
+        let mode = PoseMode::from_code(msg.mode).ok_or(Rejection::UnknownMode { frame_id, code: msg.mode })?;
+        if !msg.rotation.iter().chain(&msg.translation_m).all(|v| v.is_finite()) {
+            return Err(Rejection::PoseNotFinite { frame_id });
+        }
+        // validate() has checked hole_count <= MAX_HOLES; take() keeps this safe regardless.
+        let count = msg.hole_count as usize;
+        let mut holes = Vec::with_capacity(count);
+        for (index, ((&code, &position_m), covariance)) in
+            msg.kinds.iter().zip(&msg.positions_m).zip(&msg.covariances_m2).enumerate().take(count)
+        {
+            let kind = match code {
+                1 => HoleKind::Power,
+                2 => HoleKind::Ground,
+                _ => return Err(Rejection::UnknownHoleKind { frame_id, index, code }),
+            };
+            let covariance_m2 = std::array::from_fn(|r| std::array::from_fn(|c| covariance[3 * r + c]));
+            holes.push(Hole { kind, position_m, covariance_m2 });
+        }
+        Ok(Self {
+            frame_id,
+            capture_time: time_from_ns(msg.capture_time_ns),
+            published: time_from_ns(msg.published_ns),
+            received,
+            mode,
+            rotation: std::array::from_fn(|r| std::array::from_fn(|c| msg.rotation[3 * r + c])),
+            translation_m: msg.translation_m,
+            holes,
+        })
+    }
+
+    /// How old the result is now: the time since its frame was captured (zero if
+    /// the capture time lies in the future).
+    pub fn age(&self) -> Duration {
+        self.age_at(SystemTime::now())
+    }
+
+    /// How old the result is at `now` (zero if captured after `now`).
+    pub fn age_at(&self, now: SystemTime) -> Duration {
+        now.duration_since(self.capture_time).unwrap_or(Duration::ZERO)
+    }
+
+    /// From capture to publication: how long the sidecar took for this frame.
+    pub fn latency(&self) -> Duration {
+        self.published.duration_since(self.capture_time).unwrap_or(Duration::ZERO)
+    }
+}
+
+/// One service's health, from its latest heartbeat.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Heartbeat {
+    /// The service's name (`detector`, `normal`, `pose`, `sim-camera`, ...).
+    pub service: String,
+    /// Its process id.
+    pub pid: u32,
+    /// The heartbeat's number, counting from the service's start.
+    pub sequence: u64,
+    /// When the service started.
+    pub started: SystemTime,
+    /// When the service published this heartbeat.
+    pub published: SystemTime,
+    /// When this client took it out of shared memory.
+    pub received: SystemTime,
+    /// Inputs taken since the service started.
+    pub inputs: u64,
+    /// Outputs published since the service started.
+    pub outputs: u64,
+    /// Inputs refused since the service started.
+    pub rejected: u64,
+    /// Inputs skipped because a newer one was already waiting.
+    pub dropped: u64,
+    /// Inputs per second over the last period.
+    pub input_rate_hz: f64,
+    /// Outputs per second over the last period.
+    pub output_rate_hz: f64,
+    /// Capture to publish, median over the last period; `None` when nothing went out.
+    pub latency_p50: Option<Duration>,
+    /// Capture to publish, 99th percentile over the last period.
+    pub latency_p99: Option<Duration>,
+    /// Capture to publish, maximum over the last period.
+    pub latency_max: Option<Duration>,
+    /// The service's own work per input, median over the last period.
+    pub work_p50: Option<Duration>,
+    /// The service's own work per input, 99th percentile over the last period.
+    pub work_p99: Option<Duration>,
+    /// When the service's last output went out; `None` if it never published.
+    pub last_output: Option<SystemTime>,
+    /// Why the service refused its last refused input; `None` if it never refused one.
+    pub last_rejection: Option<String>,
+}
+
+/// A duration from milliseconds; `None` for NaN (nothing measured), negative or
+/// infinite values.
+fn millis(ms: f64) -> Option<Duration> {
+    Duration::try_from_secs_f64(ms / 1000.0).ok()
+}
+
+impl Heartbeat {
+    /// Checks the schema version of a heartbeat from shared memory and converts
+    /// it; `received` is when it was taken out.
+    pub fn from_msg(msg: &HeartbeatMsg, received: SystemTime) -> Result<Self, Rejection> {
+        if msg.schema_version != SCHEMA_VERSION {
+            return Err(WireError::Schema { found: msg.schema_version, expected: SCHEMA_VERSION }.into());
+        }
+        let last_rejection = msg.last_rejection();
+        Ok(Self {
+            service: msg.service_name().to_string(),
+            pid: msg.pid,
+            sequence: msg.sequence,
+            started: time_from_ns(msg.started_ns),
+            published: time_from_ns(msg.published_ns),
+            received,
+            inputs: msg.inputs,
+            outputs: msg.outputs,
+            rejected: msg.rejected,
+            dropped: msg.dropped,
+            input_rate_hz: msg.input_rate_hz,
+            output_rate_hz: msg.output_rate_hz,
+            latency_p50: millis(msg.latency_p50_ms),
+            latency_p99: millis(msg.latency_p99_ms),
+            latency_max: millis(msg.latency_max_ms),
+            work_p50: millis(msg.work_p50_ms),
+            work_p99: millis(msg.work_p99_ms),
+            last_output: (msg.last_output_ns != 0).then(|| time_from_ns(msg.last_output_ns)),
+            last_rejection: (!last_rejection.is_empty()).then(|| last_rejection.to_string()),
+        })
+    }
+
+    /// Whether the service published this heartbeat less than `max_silence` ago.
+    ///
+    /// Judged by the publish time, not the receive time: a reader that joins late
+    /// is handed each service's last heartbeat, which may come from a service
+    /// that died long ago. Services beat about once a second, so 3 s is a fair
+    /// `max_silence`.
+    pub fn is_alive(&self, max_silence: Duration) -> bool {
+        self.is_alive_at(SystemTime::now(), max_silence)
+    }
+
+    /// [`is_alive`](Self::is_alive) at the time `now`.
+    pub fn is_alive_at(&self, now: SystemTime, max_silence: Duration) -> bool {
+        // A heartbeat from the future (a clock step) counts as fresh.
+        now.duration_since(self.published).map_or(true, |silence| silence <= max_silence)
+    }
+
+    /// How long ago (at `now`) the service published this heartbeat.
+    pub fn silence_at(&self, now: SystemTime) -> Duration {
+        now.duration_since(self.published).unwrap_or(Duration::ZERO)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use outlet_protocol::wire::MAX_HOLES;
+
+    fn msg() -> HolePosesMsg {
+        let mut m = HolePosesMsg {
+            schema_version: SCHEMA_VERSION,
+            hole_count: 2,
+            frame_id: 5,
+            capture_time_ns: 1_000_000_000,
+            published_ns: 1_020_000_000,
+            mode: 3,
+            reserved: 0,
+            rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            translation_m: [0.0, 0.0, 0.3],
+            kinds: [0; MAX_HOLES],
+            positions_m: [[0.0; 3]; MAX_HOLES],
+            covariances_m2: [[0.0; 9]; MAX_HOLES],
+        };
+        m.kinds[0] = 1;
+        m.kinds[1] = 2;
+        m.positions_m[0] = [0.01, 0.02, 0.3];
+        m.positions_m[1] = [0.01, 0.04, 0.3];
+        m.covariances_m2[1] = [1e-8, 2e-9, 0.0, 2e-9, 4e-8, 0.0, 0.0, 0.0, 9e-8];
+        m
+    }
+
+    #[test]
+    fn a_valid_message_becomes_typed_poses() {
+        let p = HolePoses::from_msg(&msg(), time_from_ns(1_030_000_000)).expect("valid");
+        assert_eq!(p.mode, PoseMode::Plane);
+        assert_eq!(p.holes.len(), 2);
+        assert_eq!(p.holes[1].kind, HoleKind::Ground);
+        assert_eq!(p.holes[1].covariance_m2[0][1], 2e-9);
+        assert!((p.holes[1].std_dev_m()[2] - 3e-4).abs() < 1e-12);
+        assert_eq!(p.latency(), Duration::from_millis(20));
+        assert_eq!(p.age_at(time_from_ns(1_500_000_000)), Duration::from_millis(500));
+        assert_eq!(p.age_at(time_from_ns(0)), Duration::ZERO);
+    }
+
+    #[test]
+    fn unknown_codes_and_non_finite_poses_are_refused() {
+        let bad_mode = HolePosesMsg { mode: 7, ..msg() };
+        assert_eq!(
+            HolePoses::from_msg(&bad_mode, SystemTime::now()),
+            Err(Rejection::UnknownMode { frame_id: 5, code: 7 })
+        );
+        let mut bad_kind = msg();
+        bad_kind.kinds[1] = 9;
+        assert!(matches!(
+            HolePoses::from_msg(&bad_kind, SystemTime::now()),
+            Err(Rejection::UnknownHoleKind { index: 1, code: 9, .. })
+        ));
+        let mut bad_pose = msg();
+        bad_pose.translation_m[2] = f64::INFINITY;
+        assert_eq!(HolePoses::from_msg(&bad_pose, SystemTime::now()), Err(Rejection::PoseNotFinite { frame_id: 5 }));
+    }
+
+    #[test]
+    fn heartbeat_latencies_are_none_when_nothing_was_measured() {
+        let mut m = HeartbeatMsg::new("pose", 42, 1);
+        m.published_ns = 2_000_000_000;
+        m.latency_p50_ms = 12.5;
+        let h = Heartbeat::from_msg(&m, SystemTime::now()).expect("valid");
+        assert_eq!(h.latency_p50, Some(Duration::from_micros(12_500)));
+        assert_eq!(h.latency_p99, None);
+        assert_eq!(h.last_output, None);
+        assert_eq!(h.last_rejection, None);
+        assert!(h.is_alive_at(time_from_ns(2_500_000_000), Duration::from_secs(1)));
+        assert!(!h.is_alive_at(time_from_ns(3_500_000_000), Duration::from_secs(1)));
+        assert!(Heartbeat::from_msg(&HeartbeatMsg { schema_version: 0, ..m }, SystemTime::now()).is_err());
+    }
+}

@@ -1,0 +1,223 @@
+//! The sidecar's configuration: one TOML file for every service, each key with a
+//! default, command-line flags over the file. A running service publishes the
+//! configuration it resolved as a postcard snapshot, so `outlet status --config`
+//! shows what each process really runs with.
+
+use anyhow::{Context, Result, bail};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Config {
+    /// The shared-memory domain: processes see each other only within one.
+    pub domain: String,
+    /// How often each service publishes its heartbeat (ms).
+    pub heartbeat_ms: u64,
+    pub detector: DetectorConfig,
+    pub normal: NormalConfig,
+    pub pose: PoseConfig,
+    pub sim_camera: SimCameraConfig,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DetectorConfig {
+    /// `2x1`, `2x2` or a template file written by `outlet train`.
+    pub template: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NormalConfig {
+    /// The stereo camera's depth noise at 1 m (m); it grows as z².
+    pub sigma_at_1m: f64,
+    /// Estimate the noise scale from each cloud rather than trusting `sigma_at_1m`.
+    pub estimate_noise_scale: bool,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PoseConfig {
+    /// The detector's template, for its hole geometry.
+    pub template: String,
+    /// A plane further than this in time from a detection is not used (ms).
+    pub max_plane_age_ms: f64,
+    /// How long a detection waits for the plane of its own frame (ms) before
+    /// it is joined with the closest plane there is.
+    pub plane_wait_ms: f64,
+    /// Standard deviation of a detected hole's pixel (px).
+    pub pixel_sigma: f64,
+    /// A plane whose pose leaves a larger RMS reprojection error (px) belongs to
+    /// another wall than the detection's: the pose falls back to `mono`.
+    pub max_rms_px: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimCameraConfig {
+    /// Frames per second.
+    pub rate_hz: f64,
+    /// A scenario of `outlet render` (`fw_2x1white`, ..., `negative`).
+    pub scenario: String,
+    pub seed: u64,
+    pub width: u32,
+    pub height: u32,
+    /// Publish a stereo cloud with each frame.
+    pub cloud: bool,
+    /// Render this many views once and replay them (0: render every frame).
+    pub views: u32,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            domain: outlet_protocol::shm::DEFAULT_DOMAIN.into(),
+            heartbeat_ms: 1000,
+            detector: DetectorConfig::default(),
+            normal: NormalConfig::default(),
+            pose: PoseConfig::default(),
+            sim_camera: SimCameraConfig::default(),
+        }
+    }
+}
+
+impl Default for DetectorConfig {
+    fn default() -> Self {
+        Self { template: "2x1".into() }
+    }
+}
+
+impl Default for NormalConfig {
+    fn default() -> Self {
+        let p = outlet_normal::PlaneParams::default();
+        Self { sigma_at_1m: p.sigma_at_1m, estimate_noise_scale: p.estimate_noise_scale }
+    }
+}
+
+impl Default for PoseConfig {
+    fn default() -> Self {
+        Self {
+            template: "2x1".into(),
+            max_plane_age_ms: 200.0,
+            plane_wait_ms: 50.0,
+            pixel_sigma: 0.25,
+            max_rms_px: 2.0,
+        }
+    }
+}
+
+impl Default for SimCameraConfig {
+    fn default() -> Self {
+        Self { rate_hz: 10.0, scenario: "fw_2x1white".into(), seed: 1, width: 640, height: 480, cloud: true, views: 0 }
+    }
+}
+
+impl Config {
+    /// The file's configuration, or the defaults without a file.
+    pub fn load(path: Option<&Path>) -> Result<Self> {
+        let config = match path {
+            None => Self::default(),
+            Some(p) => {
+                let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+                Self::parse(&text).with_context(|| format!("configuration {}", p.display()))?
+            }
+        };
+        Ok(config)
+    }
+
+    pub fn parse(text: &str) -> Result<Self> {
+        let config: Self = toml::from_str(text)?;
+        config.check()?;
+        Ok(config)
+    }
+
+    /// Refuses values no service can run with, naming the key.
+    pub fn check(&self) -> Result<()> {
+        outlet_protocol::shm::prefix(&self.domain).context("key `domain`")?;
+        if self.heartbeat_ms == 0 || self.heartbeat_ms > 60_000 {
+            bail!("key `heartbeat_ms`: {} is not in 1..=60000", self.heartbeat_ms);
+        }
+        if !(self.normal.sigma_at_1m > 0.0 && self.normal.sigma_at_1m < 1.0) {
+            bail!("key `normal.sigma_at_1m`: {} is not in (0, 1) m", self.normal.sigma_at_1m);
+        }
+        if !(self.pose.max_plane_age_ms >= 0.0 && self.pose.max_plane_age_ms.is_finite()) {
+            bail!("key `pose.max_plane_age_ms`: {} is not a duration", self.pose.max_plane_age_ms);
+        }
+        if !(self.pose.plane_wait_ms >= 0.0 && self.pose.plane_wait_ms <= 10_000.0) {
+            bail!("key `pose.plane_wait_ms`: {} is not in 0..=10000", self.pose.plane_wait_ms);
+        }
+        if !(self.pose.max_rms_px > 0.0 && self.pose.max_rms_px.is_finite()) {
+            bail!("key `pose.max_rms_px`: {} is not positive", self.pose.max_rms_px);
+        }
+        if !(self.pose.pixel_sigma > 0.0 && self.pose.pixel_sigma.is_finite()) {
+            bail!("key `pose.pixel_sigma`: {} is not positive", self.pose.pixel_sigma);
+        }
+        let sim = &self.sim_camera;
+        if !(sim.rate_hz > 0.0 && sim.rate_hz <= 1000.0) {
+            bail!("key `sim_camera.rate_hz`: {} is not in (0, 1000]", sim.rate_hz);
+        }
+        if !outlet_sim::SCENARIOS.contains(&sim.scenario.as_str()) {
+            bail!("key `sim_camera.scenario`: {:?} is not one of {}", sim.scenario, outlet_sim::SCENARIOS.join(", "));
+        }
+        if !(64..=4096).contains(&sim.width) || !(48..=4096).contains(&sim.height) {
+            bail!("keys `sim_camera.width`/`height`: {}x{} is not a camera size", sim.width, sim.height);
+        }
+        Ok(())
+    }
+
+    /// The configuration as TOML, as a file would hold it.
+    pub fn to_toml(&self) -> Result<String> {
+        Ok(toml::to_string_pretty(self)?)
+    }
+
+    /// The compact snapshot a service publishes.
+    pub fn snapshot(&self) -> Result<Vec<u8>> {
+        Ok(postcard::to_allocvec(self)?)
+    }
+
+    pub fn from_snapshot(bytes: &[u8]) -> Result<Self> {
+        Ok(postcard::from_bytes(bytes)?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_partial_file_keeps_the_other_defaults() {
+        let c = Config::parse("domain = \"robot1\"\n[pose]\nmax_plane_age_ms = 50\n").expect("parses");
+        assert_eq!(c.domain, "robot1");
+        assert_eq!(c.pose.max_plane_age_ms, 50.0);
+        assert_eq!(c.pose.template, "2x1");
+        assert_eq!(c.sim_camera, SimCameraConfig::default());
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_are_named() {
+        let e = format!("{:#}", Config::parse("[pose]\nmax_plane_age = 5\n").expect_err("unknown key"));
+        assert!(e.contains("max_plane_age"), "{e}");
+        let e = format!("{:#}", Config::parse("heartbeat_ms = 0\n").expect_err("zero period"));
+        assert!(e.contains("heartbeat_ms"), "{e}");
+        let e = format!("{:#}", Config::parse("domain = \"a/b\"\n").expect_err("bad domain"));
+        assert!(e.contains("domain"), "{e}");
+        let e = format!("{:#}", Config::parse("[sim_camera]\nscenario = \"moon\"\n").expect_err("bad scenario"));
+        assert!(e.contains("sim_camera.scenario"), "{e}");
+    }
+
+    #[test]
+    fn the_example_file_holds_the_defaults() {
+        let text = include_str!("../../../outlet.example.toml");
+        assert_eq!(Config::parse(text).expect("the example parses"), Config::default());
+    }
+
+    #[test]
+    fn toml_and_snapshots_round_trip() {
+        let mut c = Config::default();
+        c.sim_camera.rate_hz = 12.5;
+        c.detector.template = "my.template".into();
+        assert_eq!(Config::parse(&c.to_toml().expect("toml")).expect("parses"), c);
+        assert_eq!(Config::from_snapshot(&c.snapshot().expect("snapshot")).expect("decodes"), c);
+    }
+}

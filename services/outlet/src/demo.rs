@@ -1,0 +1,375 @@
+//! `outlet demo`: the whole sidecar on the simulated camera. Starts `serve
+//! sim-camera`, `detector`, `normal` and `pose` as child processes, follows the
+//! hole poses through the client library, and prints each result beside the
+//! ground truth. Ctrl-C (or `--duration`) stops the children cleanly.
+
+use crate::serve::SimCameraArgs;
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use outlet::config::Config;
+use outlet_client::{Client, HolePoses};
+use outlet_protocol::shm;
+use outlet_protocol::wire::{DetectionMsg, TruthMsg, service};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+#[derive(Args, Debug)]
+pub struct DemoArgs {
+    /// A TOML configuration file; the flags below override it.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// The shared-memory domain (default: the file's, else `demo-<pid>`, apart from any running sidecar).
+    #[arg(long)]
+    pub domain: Option<String>,
+    /// Stop after this many seconds (default: run until Ctrl-C).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// One JSON line per result on stdout (a summary goes to stderr).
+    #[arg(long)]
+    pub json: bool,
+    /// The detector's template (default: the scenario's outlet, `2x1` or `2x2`).
+    #[arg(long)]
+    pub template: Option<String>,
+    /// Where the services' logs go (default: a folder in the temp dir).
+    #[arg(long)]
+    pub logs: Option<PathBuf>,
+    #[command(flatten)]
+    pub sim: SimCameraArgs,
+}
+
+/// One result as `--json` prints it.
+#[derive(Debug, Serialize)]
+struct ResultLine {
+    frame_id: u64,
+    mode: &'static str,
+    capture_time_ns: u64,
+    /// Capture to receipt by this client (ms).
+    latency_ms: f64,
+    /// Capture to publication by the pose service (ms).
+    published_ms: f64,
+    /// The detector's share of it (ms), when its detection was seen.
+    detect_ms: Option<f64>,
+    holes: Vec<HoleLine>,
+    /// Largest hole error against the simulated truth (mm); None without truth.
+    max_error_mm: Option<f64>,
+    /// A result where the simulated frame holds no outlet.
+    false_alarm: bool,
+}
+
+#[derive(Debug, Serialize)]
+struct HoleLine {
+    kind: &'static str,
+    position_m: [f64; 3],
+    sigma_mm: [f64; 3],
+    error_mm: Option<f64>,
+}
+
+/// The child processes; stopped with SIGTERM (then SIGKILL) however the demo ends.
+struct Children(Vec<(&'static str, Child)>);
+
+impl Children {
+    fn stop(&mut self) {
+        for (_, c) in &self.0 {
+            if let Ok(pid) = i32::try_from(c.id()) {
+                let _ = kill(Pid::from_raw(pid), Signal::SIGTERM);
+            }
+        }
+        let deadline = Instant::now() + Duration::from_secs(3);
+        for (name, c) in &mut self.0 {
+            loop {
+                match c.try_wait() {
+                    Ok(Some(_)) | Err(_) => break,
+                    Ok(None) if Instant::now() > deadline => {
+                        tracing::warn!("{name} did not stop on SIGTERM: killed");
+                        let _ = c.kill();
+                        let _ = c.wait();
+                        break;
+                    }
+                    Ok(None) => std::thread::sleep(Duration::from_millis(20)),
+                }
+            }
+        }
+        self.0.clear();
+    }
+
+    /// The first child that has exited, with its status.
+    fn exited(&mut self) -> Option<String> {
+        self.0.iter_mut().find_map(|(name, c)| match c.try_wait() {
+            Ok(Some(status)) => Some(format!("{name} exited ({status})")),
+            _ => None,
+        })
+    }
+}
+
+impl Drop for Children {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+fn ns(t: SystemTime) -> u64 {
+    t.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64)
+}
+
+pub fn demo(args: DemoArgs) -> Result<()> {
+    let mut config = Config::load(args.config.as_deref())?;
+    // Apart from any running sidecar unless told otherwise.
+    if let Some(d) = &args.domain {
+        config.domain = d.clone();
+    } else if args.config.is_none() {
+        config.domain = format!("demo-{}", std::process::id());
+    }
+    args.sim.apply(&mut config);
+    let template = args
+        .template
+        .clone()
+        .unwrap_or_else(|| if config.sim_camera.scenario.contains("2x2") { "2x2" } else { "2x1" }.to_string());
+    config.detector.template = template.clone();
+    config.pose.template = template;
+    config.check().context("configuration")?;
+    if let Some(d) = args.duration
+        && !(d > 0.0 && d.is_finite())
+    {
+        bail!("--duration {d}: not a positive number of seconds");
+    }
+
+    let logs = args.logs.clone().unwrap_or_else(|| std::env::temp_dir().join(format!("outlet-{}", config.domain)));
+    std::fs::create_dir_all(&logs).with_context(|| format!("creating {}", logs.display()))?;
+    let config_path = logs.join("config.toml");
+    std::fs::write(&config_path, config.to_toml()?).with_context(|| format!("writing {}", config_path.display()))?;
+
+    // Subscribe before the services start, so that no result is missed.
+    let node = shm::node(&config.domain, "demo")?;
+    let mut client = Client::connect(&config.domain).context("connecting the client")?;
+    let truth = shm::messages::<TruthMsg>(&node, service::TRUTH)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| anyhow::anyhow!("truth subscriber: {e:?}"))?;
+    let detections = shm::messages::<DetectionMsg>(&node, service::DETECTIONS)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| anyhow::anyhow!("detection subscriber: {e:?}"))?;
+
+    let exe = std::env::current_exe().context("locating the outlet executable")?;
+    let mut children = Children(Vec::new());
+    for name in ["normal", "pose", "detector", "sim-camera"] {
+        let log = std::fs::File::create(logs.join(format!("{name}.log")))
+            .with_context(|| format!("creating the log of {name}"))?;
+        let child = Command::new(&exe)
+            .arg("serve")
+            .arg("--config")
+            .arg(&config_path)
+            .arg(name)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .with_context(|| format!("starting {name}"))?;
+        children.0.push((name, child));
+    }
+    let sim = &config.sim_camera;
+    eprintln!(
+        "outlet demo: {} at {} Hz, {}x{}, template {}; domain {} (try `outlet status --domain {}`); logs in {}",
+        sim.scenario,
+        sim.rate_hz,
+        sim.width,
+        sim.height,
+        config.detector.template,
+        config.domain,
+        config.domain,
+        logs.display()
+    );
+
+    let started = Instant::now();
+    let mut truths: BTreeMap<u64, TruthMsg> = BTreeMap::new();
+    let mut detect_ms: BTreeMap<u64, f64> = BTreeMap::new();
+    let mut summary = Summary::default();
+    let mut last_result = Instant::now();
+    let outcome = loop {
+        if args.duration.is_some_and(|d| started.elapsed().as_secs_f64() >= d) {
+            break Ok(());
+        }
+        // Ctrl-C or SIGTERM: iceoryx2's handler records it, the node reports it.
+        if node.wait(Duration::ZERO).is_err() {
+            eprintln!("outlet demo: interrupted");
+            break Ok(());
+        }
+        if let Some(why) = children.exited() {
+            break Err(anyhow::anyhow!("{why}; see its log in {}", logs.display()));
+        }
+        let next = client.wait_next(Duration::from_millis(100));
+        while let Ok(Some(t)) = truth.receive() {
+            let t = *t.payload();
+            if t.hole_count > 0 {
+                summary.frames_with_outlet += 1;
+            }
+            summary.frames += 1;
+            truths.insert(t.frame_id, t);
+        }
+        while let Ok(Some(d)) = detections.receive() {
+            detect_ms.insert(d.payload().frame_id, d.payload().detect_ms);
+        }
+        // Results come within a few frames of their truth: keep a short window.
+        while truths.len() > 256 {
+            truths.pop_first();
+        }
+        while detect_ms.len() > 256 {
+            detect_ms.pop_first();
+        }
+        let poses = match next {
+            Ok(Some(p)) => p,
+            Ok(None) => {
+                if last_result.elapsed() > Duration::from_secs(2) && !args.json {
+                    eprintln!(
+                        "no result for {:.1} s (the detector trains its template at start; frames without an outlet give none)",
+                        last_result.elapsed().as_secs_f64()
+                    );
+                    last_result = Instant::now();
+                }
+                continue;
+            }
+            Err(e) => {
+                tracing::warn!("client: {e}");
+                continue;
+            }
+        };
+        last_result = Instant::now();
+        let line = result_line(&poses, truths.get(&poses.frame_id), detect_ms.get(&poses.frame_id).copied());
+        summary.add(&line);
+        if args.json {
+            match serde_json::to_string(&line) {
+                Ok(s) => println!("{s}"),
+                Err(e) => tracing::warn!("result line: {e}"),
+            }
+        } else {
+            print_result(&line);
+        }
+    };
+    children.stop();
+    if args.domain.is_none() && args.config.is_none() {
+        // The demo's own domain: nothing may stay behind in /dev/shm.
+        shm::remove_node_counter(&config.domain);
+    }
+    summary.print(started.elapsed().as_secs_f64());
+    outcome?;
+    if summary.results == 0 {
+        bail!(
+            "no hole poses in {:.1} s; see the services' logs in {}",
+            started.elapsed().as_secs_f64(),
+            logs.display()
+        );
+    }
+    Ok(())
+}
+
+fn result_line(poses: &HolePoses, truth: Option<&TruthMsg>, detect_ms: Option<f64>) -> ResultLine {
+    let truth_holes = truth.filter(|t| t.hole_count as usize == poses.holes.len());
+    let holes: Vec<HoleLine> = poses
+        .holes
+        .iter()
+        .enumerate()
+        .map(|(k, h)| {
+            let error_mm = truth_holes.map(|t| {
+                let d: f64 = (0..3).map(|j| (h.position_m[j] - t.positions_m[k][j]).powi(2)).sum();
+                d.sqrt() * 1e3
+            });
+            HoleLine {
+                kind: match h.kind {
+                    outlet_protocol::HoleKind::Power => "power",
+                    outlet_protocol::HoleKind::Ground => "ground",
+                },
+                position_m: h.position_m,
+                sigma_mm: h.std_dev_m().map(|s| s * 1e3),
+                error_mm,
+            }
+        })
+        .collect();
+    let max_error_mm = truth_holes.map(|_| holes.iter().filter_map(|h| h.error_mm).fold(0.0, f64::max));
+    ResultLine {
+        frame_id: poses.frame_id,
+        mode: poses.mode.as_str(),
+        capture_time_ns: ns(poses.capture_time),
+        latency_ms: poses.received.duration_since(poses.capture_time).map_or(0.0, |d| d.as_secs_f64() * 1e3),
+        published_ms: poses.latency().as_secs_f64() * 1e3,
+        detect_ms,
+        holes,
+        max_error_mm,
+        false_alarm: truth.is_some_and(|t| t.hole_count == 0),
+    }
+}
+
+fn print_result(r: &ResultLine) {
+    let error = r.max_error_mm.map_or("no truth".into(), |e| format!("max error {e:.3} mm"));
+    let detect = r.detect_ms.map_or(String::new(), |d| format!(" (detection {d:.1} ms)"));
+    let alarm = if r.false_alarm { "  FALSE ALARM: no outlet in this frame" } else { "" };
+    println!(
+        "frame {:>6}  {:<5}  {} holes  {}  latency {:.1} ms{}{}",
+        r.frame_id,
+        r.mode,
+        r.holes.len(),
+        error,
+        r.latency_ms,
+        detect,
+        alarm
+    );
+    for h in &r.holes {
+        let [x, y, z] = h.position_m.map(|v| v * 1e3);
+        let err = h.error_mm.map_or(String::new(), |e| format!("  error {e:.3}"));
+        println!("    {:<6} ({x:>8.2}, {y:>8.2}, {z:>8.2}) mm  ± {:.2} mm{err}", h.kind, h.sigma_mm[2]);
+    }
+}
+
+#[derive(Debug, Default)]
+struct Summary {
+    frames: u64,
+    frames_with_outlet: u64,
+    results: u64,
+    false_alarms: u64,
+    errors_mm: Vec<f64>,
+    latencies_ms: Vec<f64>,
+    latency_over_detection_ms: Vec<f64>,
+}
+
+impl Summary {
+    fn add(&mut self, r: &ResultLine) {
+        self.results += 1;
+        self.false_alarms += r.false_alarm as u64;
+        self.errors_mm.extend(r.holes.iter().filter_map(|h| h.error_mm));
+        self.latencies_ms.push(r.latency_ms);
+        if let Some(d) = r.detect_ms {
+            self.latency_over_detection_ms.push(r.latency_ms - d);
+        }
+    }
+
+    fn print(&mut self, seconds: f64) {
+        let q = |v: &mut Vec<f64>, p: f64| {
+            v.sort_by(f64::total_cmp);
+            if v.is_empty() {
+                return f64::NAN;
+            }
+            v[((v.len() as f64 * p).ceil() as usize).clamp(1, v.len()) - 1]
+        };
+        let rms = (self.errors_mm.iter().map(|e| e * e).sum::<f64>() / self.errors_mm.len().max(1) as f64).sqrt();
+        eprintln!(
+            "outlet demo: {:.1} s, {} frames ({} with an outlet), {} results, {} false alarms; \
+             hole error RMS {:.3} mm, p95 {:.3} mm; latency p50 {:.1} ms, p99 {:.1} ms; \
+             latency beyond detection p50 {:.2} ms, p99 {:.2} ms",
+            seconds,
+            self.frames,
+            self.frames_with_outlet,
+            self.results,
+            self.false_alarms,
+            rms,
+            q(&mut self.errors_mm, 0.95),
+            q(&mut self.latencies_ms, 0.5),
+            q(&mut self.latencies_ms, 0.99),
+            q(&mut self.latency_over_detection_ms, 0.5),
+            q(&mut self.latency_over_detection_ms, 0.99),
+        );
+    }
+}

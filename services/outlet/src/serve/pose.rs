@@ -1,0 +1,207 @@
+//! The pose service: detections ([`service::DETECTIONS`]) joined with the wall
+//! plane closest in time ([`service::PLANES`]) into hole poses
+//! ([`service::HOLE_POSES`]): the `plane` mode with a plane near enough in
+//! time, else `mono`.
+
+use super::{Output, Runtime, clear};
+use anyhow::Result;
+use iceoryx2::prelude::*;
+use iceoryx2::waitset::WaitSetRunResult;
+use nalgebra::{Matrix3, Point2, Unit, Vector3};
+use outlet::health::{Health, now_ns};
+use outlet_pose::{Mode, Observations, OutletPose, PlaneMeasurement, solve_mono, solve_plane};
+use outlet_protocol::wire::{DetectionMsg, HolePosesMsg, MAX_HOLES, SCHEMA_VERSION, WallPlaneMsg, service};
+use outlet_protocol::{HoleKind, OutletGeometry, shm};
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+/// Planes kept to join each detection with the one closest in time.
+const RECENT_PLANES: usize = 16;
+
+pub fn run(rt: &Runtime) -> Result<()> {
+    let config = &rt.config.pose;
+    let geometry = outlet::templates::load(&config.template)?.geometry;
+    let detection_sub = shm::messages::<DetectionMsg>(&rt.node, service::DETECTIONS)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| anyhow::anyhow!("detection subscriber: {e:?}"))?;
+    let plane_sub = shm::messages::<WallPlaneMsg>(&rt.node, service::PLANES)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| anyhow::anyhow!("plane subscriber: {e:?}"))?;
+    let detection_listener = rt.listener(service::DETECTIONS)?;
+    let plane_listener = rt.listener(service::PLANES)?;
+    let output = Output::<HolePosesMsg>::open(rt, service::HOLE_POSES)?;
+    let waitset = rt.waitset()?;
+    let detections = waitset.attach_notification(&detection_listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
+    let planes = waitset.attach_notification(&plane_listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
+    let tick = waitset.attach_interval(rt.heartbeat_period()).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
+    let mut recent: VecDeque<WallPlaneMsg> = VecDeque::with_capacity(RECENT_PLANES);
+    // Detections waiting for the plane of their frame, with when they arrived.
+    let mut pending: VecDeque<(DetectionMsg, Instant)> = VecDeque::new();
+    let mut last_plane: Option<Instant> = None;
+    let plane_wait = Duration::from_secs_f64(config.plane_wait_ms / 1e3);
+    let mut health = Health::new(rt.name);
+    tracing::info!("pose service ready ({})", config.template);
+    let publish = |d: &DetectionMsg, recent: &VecDeque<WallPlaneMsg>, health: &mut Health| {
+        let started = Instant::now();
+        match solve(d, &geometry, recent, config) {
+            Ok(None) => {} // no outlet in that frame
+            Ok(Some(pose)) => {
+                if output.send(poses_msg(d, &geometry, &pose)) {
+                    health.output(d.capture_time_ns, started.elapsed().as_secs_f64() * 1e3);
+                }
+            }
+            Err(reason) => {
+                health.rejected(&reason);
+                tracing::warn!(frame = d.frame_id, "no pose: {reason}");
+            }
+        }
+    };
+    loop {
+        let timeout = pending.front().map_or(Duration::MAX, |(_, at)| plane_wait.saturating_sub(at.elapsed()));
+        let on_event = |id: WaitSetAttachmentId<ipc::Service>| {
+            if id.has_event_from(&tick) {
+                rt.beat(&mut health);
+            }
+            if id.has_event_from(&planes) {
+                clear(&plane_listener);
+                while let Ok(Some(p)) = plane_sub.receive() {
+                    let p = *p.payload();
+                    if p.schema_version == SCHEMA_VERSION
+                        && p.normal.iter().chain([&p.distance_m]).all(|v| v.is_finite())
+                    {
+                        if recent.len() == RECENT_PLANES {
+                            recent.pop_front();
+                        }
+                        recent.push_back(p);
+                        last_plane = Some(Instant::now());
+                    } else {
+                        let reason = format!("plane {}: wrong schema or not finite", p.frame_id);
+                        health.rejected(&reason);
+                        tracing::warn!("{reason}");
+                    }
+                }
+            }
+            if id.has_event_from(&detections) {
+                clear(&detection_listener);
+                while let Ok(Some(d)) = detection_sub.receive() {
+                    health.input();
+                    pending.push_back((*d.payload(), Instant::now()));
+                }
+            }
+            CallbackProgression::Continue
+        };
+        match waitset.wait_and_process_once_with_timeout(on_event, timeout) {
+            Ok(WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) => break,
+            Ok(_) => {}
+            Err(e) => return Err(anyhow::anyhow!("waiting: {e:?}")),
+        }
+        // A detection goes out once the plane of its moment is in (a plane as
+        // late or later), when planes stopped coming, or after `plane_wait`.
+        let planes_flowing = last_plane.is_some_and(|t| t.elapsed().as_secs_f64() * 1e3 < config.max_plane_age_ms);
+        while let Some((d, at)) = pending.front() {
+            let plane_in = recent.iter().any(|p| p.capture_time_ns >= d.capture_time_ns);
+            if d.hole_count == 0 || plane_in || !planes_flowing || at.elapsed() >= plane_wait {
+                publish(d, &recent, &mut health);
+                pending.pop_front();
+            } else {
+                break;
+            }
+        }
+    }
+    rt.stopped(&health);
+    Ok(())
+}
+
+/// The pose of the outlet a detection found; None when it found none.
+fn solve(
+    d: &DetectionMsg,
+    geometry: &OutletGeometry,
+    recent: &VecDeque<WallPlaneMsg>,
+    config: &outlet::config::PoseConfig,
+) -> Result<Option<OutletPose>, String> {
+    if d.schema_version != SCHEMA_VERSION {
+        return Err(format!("detection {}: schema {} (this build: {SCHEMA_VERSION})", d.frame_id, d.schema_version));
+    }
+    if d.hole_count == 0 {
+        return Ok(None);
+    }
+    if d.hole_count as usize != geometry.holes.len() {
+        return Err(format!(
+            "detection {}: {} holes, the template `{}` has {}",
+            d.frame_id,
+            d.hole_count,
+            config.template,
+            geometry.holes.len()
+        ));
+    }
+    let camera = d.camera().map_err(|e| format!("detection {}: {e}", d.frame_id))?;
+    let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
+    let pixels: Vec<Point2<f64>> = d.holes[..model.len()].iter().map(|h| Point2::new(h.pixel[0], h.pixel[1])).collect();
+    let obs = Observations { model_mm: &model, pixels: &pixels, camera: &camera, pixel_sigma: config.pixel_sigma };
+    let plane = recent
+        .iter()
+        .min_by_key(|p| p.capture_time_ns.abs_diff(d.capture_time_ns))
+        .filter(|p| (p.capture_time_ns.abs_diff(d.capture_time_ns) as f64) / 1e6 <= config.max_plane_age_ms);
+    let solved = match plane {
+        Some(p) => {
+            let measurement = PlaneMeasurement {
+                normal: Unit::new_normalize(Vector3::from(p.normal)),
+                distance_m: p.distance_m,
+                covariance: Matrix3::from_row_slice(&p.covariance),
+                tangent: p.tangent.map(Vector3::from),
+                face_offset_m: geometry.face_offset_mm / 1000.0,
+            };
+            match solve_plane(&obs, &measurement) {
+                // A plane of another wall (or a wrong stereo fit) cannot explain the holes.
+                Ok(pose) if pose.rms_px > config.max_rms_px => {
+                    tracing::warn!(
+                        frame = d.frame_id,
+                        plane_frame = p.frame_id,
+                        "the plane leaves {:.1} px RMS: mono instead",
+                        pose.rms_px
+                    );
+                    solve_mono(&obs)
+                }
+                other => other,
+            }
+        }
+        None => solve_mono(&obs),
+    };
+    solved.map(Some).map_err(|e| format!("detection {}: {e}", d.frame_id))
+}
+
+fn poses_msg(d: &DetectionMsg, geometry: &OutletGeometry, pose: &OutletPose) -> HolePosesMsg {
+    let r = pose.pose.rotation.to_rotation_matrix();
+    let t = pose.pose.translation.vector;
+    let mut msg = HolePosesMsg {
+        schema_version: SCHEMA_VERSION,
+        hole_count: pose.holes_cam_m.len().min(MAX_HOLES) as u32,
+        frame_id: d.frame_id,
+        capture_time_ns: d.capture_time_ns,
+        published_ns: now_ns(),
+        mode: match pose.mode {
+            Mode::Mono => 1,
+            Mode::Normal => 2,
+            Mode::Plane => 3,
+        },
+        reserved: 0,
+        rotation: std::array::from_fn(|k| r[(k / 3, k % 3)]),
+        translation_m: [t.x, t.y, t.z],
+        kinds: [0; MAX_HOLES],
+        positions_m: [[0.0; 3]; MAX_HOLES],
+        covariances_m2: [[0.0; 9]; MAX_HOLES],
+    };
+    for (k, ((h, c), hole)) in
+        pose.holes_cam_m.iter().zip(&pose.covariances).zip(&geometry.holes).take(MAX_HOLES).enumerate()
+    {
+        msg.positions_m[k] = [h.x, h.y, h.z];
+        msg.covariances_m2[k] = std::array::from_fn(|j| c[(j / 3, j % 3)]);
+        msg.kinds[k] = match hole.kind {
+            HoleKind::Power => 1,
+            HoleKind::Ground => 2,
+        };
+    }
+    msg
+}

@@ -1,0 +1,166 @@
+//! The renderer as a camera: at `rate_hz`, a rendered frame on
+//! [`service::FRAMES`], its stereo cloud on [`service::CLOUDS`] and the ground
+//! truth on [`service::TRUTH`], all with the same frame id and capture stamp.
+//! Each frame is a new view of the scenario (or one of `views` rendered once).
+
+use super::{Output, Runtime, notifier};
+use anyhow::Result;
+use iceoryx2::prelude::*;
+use outlet::health::{Health, now_ns};
+use outlet_protocol::wire::{CloudHeader, FrameHeader, MAX_HOLES, PixelFormat, SCHEMA_VERSION, TruthMsg, service};
+use outlet_protocol::{CameraModel, shm};
+use outlet_sim::RenderedFrame;
+use std::time::{Duration, Instant};
+
+/// The camera of a `width` x `height` simulated sensor: the default VGA camera's
+/// field of view and lens.
+pub fn camera(width: u32, height: u32) -> Result<CameraModel> {
+    let vga = CameraModel::default_vga();
+    let f = vga.fx * width as f64 / 640.0;
+    Ok(CameraModel::new(
+        width,
+        height,
+        [f, f, (width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0],
+        vga.distortion,
+    )?)
+}
+
+/// Renders view `index` of the scenario; None (logged) when it has no valid pose.
+fn render(config: &outlet::config::SimCameraConfig, camera: &CameraModel, index: u64) -> Option<RenderedFrame> {
+    match outlet_sim::sample_scene(&config.scenario, config.seed, index, camera) {
+        Ok(scene) => Some(outlet_sim::render_frame(&scene, &format!("sim-{index}"))),
+        Err(e) => {
+            tracing::warn!("view {index}: {e}");
+            None
+        }
+    }
+}
+
+fn truth_msg(frame: &RenderedFrame, frame_id: u64, capture_time_ns: u64) -> TruthMsg {
+    let truth = &frame.truth;
+    let mut msg = TruthMsg {
+        schema_version: SCHEMA_VERSION,
+        hole_count: 0,
+        frame_id,
+        capture_time_ns,
+        positions_m: [[f64::NAN; 3]; MAX_HOLES],
+        rotation: [f64::NAN; 9],
+        translation_m: [f64::NAN; 3],
+    };
+    if let Some(pose) = &truth.pose {
+        msg.rotation = std::array::from_fn(|k| pose.rotation[k / 3][k % 3]);
+        msg.translation_m = pose.translation_m;
+        let positions: Vec<[f64; 3]> = truth.holes.iter().filter_map(|h| h.position_m).collect();
+        if positions.len() == truth.holes.len() {
+            msg.hole_count = positions.len().min(MAX_HOLES) as u32;
+            for (slot, p) in msg.positions_m.iter_mut().zip(positions) {
+                *slot = p;
+            }
+        }
+    }
+    msg
+}
+
+pub fn run(rt: &Runtime) -> Result<()> {
+    let config = &rt.config.sim_camera;
+    let camera = camera(config.width, config.height)?;
+    let frame_bytes = (camera.width * camera.height * 3) as usize;
+    let frames = shm::frames(&rt.node)?
+        .publisher_builder()
+        .initial_max_slice_len(frame_bytes)
+        .allocation_strategy(AllocationStrategy::PowerOfTwo)
+        .create()
+        .map_err(|e| anyhow::anyhow!("frame publisher: {e:?}"))?;
+    let clouds = shm::clouds(&rt.node)?
+        .publisher_builder()
+        .initial_max_slice_len((camera.width * camera.height * 3) as usize)
+        .allocation_strategy(AllocationStrategy::PowerOfTwo)
+        .create()
+        .map_err(|e| anyhow::anyhow!("cloud publisher: {e:?}"))?;
+    let frame_note = notifier(rt, service::FRAMES)?;
+    let cloud_note = notifier(rt, service::CLOUDS)?;
+    let truth = Output::<TruthMsg>::open(rt, service::TRUTH)?;
+
+    let replay: Vec<RenderedFrame> = (0..config.views as u64).filter_map(|i| render(config, &camera, i)).collect();
+    if config.views > 0 && replay.is_empty() {
+        anyhow::bail!("none of the {} views of {} could be rendered", config.views, config.scenario);
+    }
+    let waitset = rt.waitset()?;
+    let period = Duration::from_secs_f64(1.0 / config.rate_hz);
+    let shutter = waitset.attach_interval(period).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
+    let tick = waitset.attach_interval(rt.heartbeat_period()).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
+    let mut health = Health::new(rt.name);
+    let mut frame_id = 0u64;
+    tracing::info!(
+        "sim-camera ready: {} at {} Hz, {}x{} -> {}, {}, {}",
+        config.scenario,
+        config.rate_hz,
+        camera.width,
+        camera.height,
+        service::FRAMES,
+        service::CLOUDS,
+        service::TRUTH
+    );
+    let on_event = |id: WaitSetAttachmentId<ipc::Service>| {
+        if id.has_event_from(&tick) {
+            rt.beat(&mut health);
+        }
+        if id.has_event_from(&shutter) {
+            frame_id += 1;
+            health.input();
+            let started = Instant::now();
+            let live;
+            let frame = if replay.is_empty() {
+                live = render(config, &camera, frame_id - 1);
+                match &live {
+                    Some(f) => f,
+                    None => return CallbackProgression::Continue,
+                }
+            } else {
+                &replay[((frame_id - 1) % replay.len() as u64) as usize]
+            };
+            // The shutter closes now: rendering stands for exposure and readout.
+            let stamp = now_ns();
+            let render_ms = started.elapsed().as_secs_f64() * 1e3;
+            // The frame first: its stamp is the moment it is handed over.
+            let pixels = frame.frame.image.as_raw();
+            let mut sent = (|| {
+                let mut f = frames.loan_slice_uninit(pixels.len()).map_err(|e| format!("frame: {e:?}"))?;
+                *f.user_header_mut() = FrameHeader::new(frame_id, stamp, PixelFormat::Rgb8, &camera);
+                f.write_from_slice(pixels).send().map_err(|e| format!("frame: {e:?}"))?;
+                let _ = frame_note.notify();
+                Ok::<(), String>(())
+            })();
+            if config.cloud && sent.is_ok() {
+                let values: Vec<f32> = frame.cloud.iter().flatten().copied().collect();
+                sent = clouds
+                    .loan_slice_uninit(values.len())
+                    .map_err(|e| format!("cloud: {e:?}"))
+                    .and_then(|mut c| {
+                        *c.user_header_mut() = CloudHeader {
+                            schema_version: SCHEMA_VERSION,
+                            reserved: 0,
+                            frame_id,
+                            capture_time_ns: stamp,
+                            points: frame.cloud.len() as u64,
+                        };
+                        c.write_from_slice(&values).send().map_err(|e| format!("cloud: {e:?}"))
+                    })
+                    .map(|_| {
+                        let _ = cloud_note.notify();
+                    });
+            }
+            match sent {
+                Ok(()) => {
+                    truth.send(truth_msg(frame, frame_id, stamp));
+                    health.output(stamp, render_ms);
+                }
+                Err(e) => tracing::warn!(frame = frame_id, "publishing: {e}"),
+            }
+        }
+        CallbackProgression::Continue
+    };
+    waitset.wait_and_process(on_event).map_err(|e| anyhow::anyhow!("waiting: {e:?}"))?;
+    rt.stopped(&health);
+    Ok(())
+}
