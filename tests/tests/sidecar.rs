@@ -69,6 +69,24 @@ fn frames_from_the_sim_camera_give_hole_poses_under_a_millimetre_in_owner_only_m
         }
     }
     let worst = errors.iter().copied().fold(0.0, f64::max);
+
+    // `outlet status` sees the four services alive and the frames flowing.
+    let status = std::process::Command::new(outlet_tests::outlet_exe()?)
+        .args(["status", "--domain", &domain, "--once", "--json", "--interval-ms", "1500"])
+        .output()?;
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&status.stdout)?;
+    let alive: Vec<&str> = report["services"]
+        .as_array()
+        .ok_or("no services")?
+        .iter()
+        .filter(|s| s["alive"] == true)
+        .filter_map(|s| s["service"].as_str())
+        .collect();
+    assert_eq!(alive, ["detector", "normal", "pose", "sim-camera"], "{report}");
+    let frames = &report["channels"][0];
+    assert_eq!(frames["name"], service::FRAMES);
+    assert!(frames["rate_hz"].as_f64().is_some_and(|r| r > 3.0), "{report}");
     assert!(worst < 1.0, "worst hole error {worst:.3} mm over {} holes", errors.len());
 
     // Every segment of the domain, iceoryx2's node counter included, is the owner's alone.
