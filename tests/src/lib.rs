@@ -7,8 +7,31 @@ use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-/// The `outlet` executable of this build profile, built on first use (cargo
-/// builds only this package's targets for its tests).
+/// The newest modification time of the workspace's sources and manifests.
+fn newest_source(dir: &std::path::Path) -> Option<std::time::SystemTime> {
+    let mut newest = None;
+    for entry in std::fs::read_dir(dir).ok()?.flatten() {
+        let path = entry.path();
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        if name.starts_with('.') || name == "target" {
+            continue;
+        }
+        let t = if path.is_dir() {
+            newest_source(&path)
+        } else if name.ends_with(".rs") || name.ends_with(".toml") || name == "Cargo.lock" {
+            entry.metadata().ok()?.modified().ok()
+        } else {
+            None
+        };
+        newest = newest.max(t);
+    }
+    newest
+}
+
+/// The `outlet` executable of this build profile. `cargo test --workspace`
+/// has built it already (the `outlet` package's own tests need it); built here
+/// when it is older than the sources, as with `cargo test -p outlet-tests`.
 pub fn outlet_exe() -> Result<PathBuf, String> {
     static EXE: OnceLock<Result<PathBuf, String>> = OnceLock::new();
     EXE.get_or_init(|| {
@@ -17,6 +40,12 @@ pub fn outlet_exe() -> Result<PathBuf, String> {
         let profile_dir = test_exe.parent().and_then(|d| d.parent()).ok_or("no target directory")?.to_path_buf();
         let target_dir = profile_dir.parent().ok_or("no target directory")?;
         let profile = profile_dir.file_name().and_then(|n| n.to_str()).ok_or("no profile")?;
+        let exe = profile_dir.join("outlet");
+        let workspace = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).parent().ok_or("no workspace")?;
+        let built = std::fs::metadata(&exe).and_then(|m| m.modified()).ok();
+        if built.is_some() && built >= newest_source(workspace) {
+            return Ok(exe);
+        }
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let mut build = Command::new(cargo);
         build.args(["build", "--quiet", "-p", "outlet", "--bin", "outlet", "--target-dir"]).arg(target_dir);
@@ -27,7 +56,7 @@ pub fn outlet_exe() -> Result<PathBuf, String> {
         if !status.success() {
             return Err(format!("cargo build -p outlet failed: {status}"));
         }
-        Ok(profile_dir.join("outlet"))
+        Ok(exe)
     })
     .clone()
 }
