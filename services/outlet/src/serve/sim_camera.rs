@@ -119,15 +119,18 @@ pub fn run(rt: &Runtime) -> Result<()> {
             } else {
                 &replay[((frame_id - 1) % replay.len() as u64) as usize]
             };
-            // The shutter closes now: rendering stands for exposure and readout.
-            let stamp = now_ns();
             let render_ms = started.elapsed().as_secs_f64() * 1e3;
-            // The frame first: its stamp is the moment it is handed over.
+            // The frame first. Its stamp is the moment it is handed over, once the
+            // pixels are in shared memory: rendering and the copy stand for
+            // exposure and readout. The cloud carries the same stamp.
             let pixels = frame.frame.image.as_raw();
+            let mut stamp = 0;
             let mut sent = (|| {
-                let mut f = frames.loan_slice_uninit(pixels.len()).map_err(|e| format!("frame: {e:?}"))?;
+                let f = frames.loan_slice_uninit(pixels.len()).map_err(|e| format!("frame: {e:?}"))?;
+                let mut f = f.write_from_slice(pixels);
+                stamp = now_ns();
                 *f.user_header_mut() = FrameHeader::new(frame_id, stamp, PixelFormat::Rgb8, &camera);
-                f.write_from_slice(pixels).send().map_err(|e| format!("frame: {e:?}"))?;
+                f.send().map_err(|e| format!("frame: {e:?}"))?;
                 let _ = frame_note.notify();
                 Ok::<(), String>(())
             })();
