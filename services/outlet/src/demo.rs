@@ -38,6 +38,13 @@ pub struct DemoArgs {
     /// Where the services' logs go (default: a folder in the temp dir).
     #[arg(long)]
     pub logs: Option<PathBuf>,
+    /// Soak run: write each period's memory, counters and latency percentiles
+    /// to this file as JSON lines, and a summary line at the end.
+    #[arg(long)]
+    pub soak_report: Option<PathBuf>,
+    /// Length of a soak report's period (s).
+    #[arg(long, default_value_t = 60.0)]
+    pub soak_period_s: f64,
     #[command(flatten)]
     pub sim: SimCameraArgs,
 }
@@ -185,6 +192,18 @@ pub fn demo(args: DemoArgs) -> Result<()> {
         logs.display()
     );
 
+    if !(args.soak_period_s >= 1.0 && args.soak_period_s.is_finite()) {
+        bail!("--soak-period-s {}: at least 1 s", args.soak_period_s);
+    }
+    let mut soak = match &args.soak_report {
+        Some(path) => {
+            Some(crate::soak::SoakReport::create(path).with_context(|| format!("creating {}", path.display()))?)
+        }
+        None => None,
+    };
+    let pids: Vec<(&str, u32)> = children.0.iter().map(|(name, c)| (*name, c.id())).collect();
+    let mut next_period = Duration::from_secs_f64(args.soak_period_s);
+
     let started = Instant::now();
     let mut truths: BTreeMap<u64, TruthMsg> = BTreeMap::new();
     let mut detect_ms: BTreeMap<u64, f64> = BTreeMap::new();
@@ -202,9 +221,21 @@ pub fn demo(args: DemoArgs) -> Result<()> {
         if let Some(why) = children.exited() {
             break Err(anyhow::anyhow!("{why}; see its log in {}", logs.display()));
         }
+        if let Some(report) = &mut soak
+            && started.elapsed() >= next_period
+        {
+            let beats = client.heartbeats().unwrap_or_default();
+            if let Err(e) = report.period(started.elapsed().as_secs_f64(), &beats, &pids) {
+                tracing::warn!("soak report: {e}");
+            }
+            next_period += Duration::from_secs_f64(args.soak_period_s);
+        }
         let next = client.wait_next(Duration::from_millis(100));
         while let Ok(Some(t)) = truth.receive() {
             let t = *t.payload();
+            if let Some(report) = &mut soak {
+                report.frame();
+            }
             if t.hole_count > 0 {
                 summary.frames_with_outlet += 1;
             }
@@ -241,6 +272,9 @@ pub fn demo(args: DemoArgs) -> Result<()> {
         last_result = Instant::now();
         let line = result_line(&poses, truths.get(&poses.frame_id), detect_ms.get(&poses.frame_id).copied());
         summary.add(&line);
+        if let Some(report) = &mut soak {
+            report.result(line.latency_ms);
+        }
         if args.json {
             match serde_json::to_string(&line) {
                 Ok(s) => println!("{s}"),
@@ -250,6 +284,13 @@ pub fn demo(args: DemoArgs) -> Result<()> {
             print_result(&line);
         }
     };
+    if let Some(report) = &mut soak {
+        let crashed = outcome.as_ref().err().map(|e| format!("{e:#}"));
+        match report.finish(started.elapsed().as_secs_f64(), crashed) {
+            Ok(s) => eprintln!("outlet demo: soak summary {}", serde_json::to_string(&s).unwrap_or_default()),
+            Err(e) => tracing::warn!("soak report: {e}"),
+        }
+    }
     children.stop();
     if args.domain.is_none() && args.config.is_none() {
         // The demo's own domain: nothing may stay behind in /dev/shm.
@@ -337,12 +378,18 @@ struct Summary {
 
 impl Summary {
     fn add(&mut self, r: &ResultLine) {
+        // Percentiles over the first 100 000 values: a soak of hours keeps a fixed size.
+        const KEEP: usize = 100_000;
         self.results += 1;
         self.false_alarms += r.false_alarm as u64;
-        self.errors_mm.extend(r.holes.iter().filter_map(|h| h.error_mm));
-        self.latencies_ms.push(r.latency_ms);
-        if let Some(d) = r.detect_ms {
-            self.latency_over_detection_ms.push(r.latency_ms - d);
+        if self.errors_mm.len() < KEEP {
+            self.errors_mm.extend(r.holes.iter().filter_map(|h| h.error_mm));
+        }
+        if self.latencies_ms.len() < KEEP {
+            self.latencies_ms.push(r.latency_ms);
+            if let Some(d) = r.detect_ms {
+                self.latency_over_detection_ms.push(r.latency_ms - d);
+            }
         }
     }
 

@@ -6,6 +6,7 @@ mod eval_cmd;
 mod font;
 mod render_cmd;
 mod serve;
+mod soak;
 mod status;
 
 use clap::{Parser, Subcommand};
