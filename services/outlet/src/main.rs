@@ -4,6 +4,7 @@ mod demo;
 mod detect_cmd;
 mod eval_cmd;
 mod font;
+mod record;
 mod render_cmd;
 mod serve;
 mod soak;
@@ -33,6 +34,10 @@ enum Command {
     Eval(eval_cmd::EvalArgs),
     /// Run one of the sidecar's services on iceoryx2 shared memory.
     Serve(serve::ServeArgs),
+    /// Record the camera's frames and clouds from shared memory into a file.
+    Record(record::RecordArgs),
+    /// Play a recording back into shared memory with its original timing.
+    Replay(record::ReplayArgs),
     /// The whole sidecar on the simulated camera: each result with its error and latency.
     Demo(demo::DemoArgs),
     /// A live view of the running services: channel rates, latencies, rejected inputs.
@@ -54,6 +59,8 @@ fn main() -> ExitCode {
         Command::Serve(args) => serve::serve(args),
         Command::Status(args) => status::status(args),
         Command::Demo(args) => demo::demo(args),
+        Command::Record(args) => record::record(args),
+        Command::Replay(args) => record::replay(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
