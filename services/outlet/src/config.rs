@@ -18,6 +18,8 @@ pub struct Config {
     pub normal: NormalConfig,
     pub pose: PoseConfig,
     pub sim_camera: SimCameraConfig,
+    /// `outlet serve ros2-bridge`: DDS domain, interfaces, frame id and topics.
+    pub ros2: outlet_ros2_bridge::Ros2Config,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -78,6 +80,7 @@ impl Default for Config {
             normal: NormalConfig::default(),
             pose: PoseConfig::default(),
             sim_camera: SimCameraConfig::default(),
+            ros2: outlet_ros2_bridge::Ros2Config::default(),
         }
     }
 }
@@ -163,6 +166,7 @@ impl Config {
         if !(64..=4096).contains(&sim.width) || !(48..=4096).contains(&sim.height) {
             bail!("keys `sim_camera.width`/`height`: {}x{} is not a camera size", sim.width, sim.height);
         }
+        self.ros2.check().map_err(anyhow::Error::msg)?;
         Ok(())
     }
 
@@ -204,6 +208,23 @@ mod tests {
         assert!(e.contains("domain"), "{e}");
         let e = format!("{:#}", Config::parse("[sim_camera]\nscenario = \"moon\"\n").expect_err("bad scenario"));
         assert!(e.contains("sim_camera.scenario"), "{e}");
+    }
+
+    #[test]
+    fn the_ros2_table_is_read_and_checked() {
+        let c = Config::parse("[ros2]\ndomain_id = 42\ninterfaces = [\"lo\"]\n[ros2.topics]\nimage = \"/cam/image\"\n")
+            .expect("parses");
+        assert_eq!(c.ros2.domain_id, 42);
+        assert_eq!(c.ros2.interfaces, ["lo"]);
+        assert_eq!(c.ros2.topics.image, "/cam/image");
+        assert_eq!(c.ros2.topics.holes, "/outlet/holes", "the other topics keep their defaults");
+        assert_eq!(c.ros2.frame_id, "camera_optical_frame");
+        let e = format!("{:#}", Config::parse("[ros2]\ndomain_id = 300\n").expect_err("domain"));
+        assert!(e.contains("ros2.domain_id"), "{e}");
+        let e = format!("{:#}", Config::parse("[ros2.topics]\nholes = \"/a//b\"\n").expect_err("topic"));
+        assert!(e.contains("ros2.topics.holes"), "{e}");
+        let e = format!("{:#}", Config::parse("[ros2]\nnetworks = []\n").expect_err("unknown key"));
+        assert!(e.contains("networks"), "{e}");
     }
 
     #[test]

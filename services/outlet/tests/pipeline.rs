@@ -16,14 +16,7 @@ fn frames_and_clouds_in_hole_poses_out_under_a_millimetre() -> Result<(), Box<dy
         &[&["detector", "--template", "2x1"], &["normal"], &["pose", "--template", "2x1"]],
     )?;
     let camera = CameraModel::default_vga();
-    let seed = (0..100)
-        .find(|&s| {
-            outlet_sim::sample_scene("fw_2x1white", s, 0, &camera)
-                .map(|scene| outlet_sim::truth::view(&scene).off_axis_deg < 25.0)
-                .unwrap_or(false)
-        })
-        .ok_or("no scene")?;
-    let scene = outlet_sim::sample_scene("fw_2x1white", seed, 0, &camera)?;
+    let scene = common::frontal_scene("fw_2x1white", &camera, 25.0)?;
     let frame = outlet_sim::render_frame(&scene, "x");
     let pixels = frame.frame.image.as_raw();
     let cloud: Vec<f32> = frame.cloud.iter().flatten().copied().collect();

@@ -14,14 +14,7 @@ fn frames_in_detections_out_and_bad_frames_are_rejected() -> Result<(), Box<dyn 
     let domain = common::domain("servedetec");
     let mut services = common::Services::start(&domain, &[&["detector", "--template", "2x1"]])?;
     let camera = CameraModel::default_vga();
-    let seed = (0..100)
-        .find(|&s| {
-            outlet_sim::sample_scene("orange2x1", s, 0, &camera)
-                .map(|scene| outlet_sim::truth::view(&scene).off_axis_deg < 20.0)
-                .unwrap_or(false)
-        })
-        .ok_or("no frontal scene")?;
-    let scene = outlet_sim::sample_scene("orange2x1", seed, 0, &camera)?;
+    let scene = common::frontal_scene("orange2x1", &camera, 20.0)?;
     let frame = outlet_sim::render_frame(&scene, "x");
     let pixels = frame.frame.image.as_raw();
 

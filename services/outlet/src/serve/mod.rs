@@ -6,6 +6,7 @@
 mod detector;
 mod normal;
 mod pose;
+mod ros2_bridge;
 mod sim_camera;
 
 use anyhow::{Context, Result};
@@ -61,6 +62,15 @@ pub enum Service {
     },
     /// The renderer as a camera: frames and stereo clouds at a rate, the truth on a side channel.
     SimCamera(SimCameraArgs),
+    /// The ROS 2 bridge: images, camera info and clouds in from ROS 2, hole poses and diagnostics out.
+    Ros2Bridge {
+        /// The DDS domain id, ROS_DOMAIN_ID (`ros2.domain_id`).
+        #[arg(long)]
+        ros_domain_id: Option<u16>,
+        /// A network interface DDS may use, by name or IPv4 address; repeatable (`ros2.interfaces`).
+        #[arg(long = "interface")]
+        interfaces: Vec<String>,
+    },
 }
 
 #[derive(Args, Debug, Default, Clone)]
@@ -146,6 +156,15 @@ pub fn serve(args: ServeArgs) -> Result<()> {
             sim.apply(&mut config);
             "sim-camera"
         }
+        Service::Ros2Bridge { ros_domain_id, interfaces } => {
+            if let Some(d) = ros_domain_id {
+                config.ros2.domain_id = *d;
+            }
+            if !interfaces.is_empty() {
+                config.ros2.interfaces = interfaces.clone();
+            }
+            "ros2-bridge"
+        }
     };
     config.check().context("configuration")?;
     let runtime = Runtime::start(name, config)?;
@@ -154,6 +173,7 @@ pub fn serve(args: ServeArgs) -> Result<()> {
         Service::Detector { .. } => detector::run(&runtime),
         Service::Pose { .. } => pose::run(&runtime),
         Service::SimCamera(_) => sim_camera::run(&runtime),
+        Service::Ros2Bridge { .. } => ros2_bridge::run(&runtime),
     };
     result.with_context(|| format!("{name} service"))
 }

@@ -54,3 +54,17 @@ impl Drop for Services {
 pub fn domain(test: &str) -> String {
     format!("{test}-{}", std::process::id())
 }
+
+/// The first scene of `scenario` (seeds 0..100) seen within `max_off_axis_deg`
+/// of frontal: one the detector finds every hole of.
+#[allow(dead_code)] // not every test binary that shares this module uses it
+pub fn frontal_scene(
+    scenario: &str,
+    camera: &outlet_protocol::CameraModel,
+    max_off_axis_deg: f64,
+) -> Result<outlet_sim::Scene, String> {
+    (0..100)
+        .filter_map(|s| outlet_sim::sample_scene(scenario, s, 0, camera).ok())
+        .find(|scene| outlet_sim::truth::view(scene).off_axis_deg < max_off_axis_deg)
+        .ok_or_else(|| format!("no scene of {scenario} within {max_off_axis_deg} degrees of frontal"))
+}

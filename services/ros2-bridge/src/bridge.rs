@@ -1,0 +1,306 @@
+//! The DDS side of the bridge: one ros2-client node on a rustdds
+//! DomainParticipant that uses only the configured network interfaces.
+//!
+//! # Confining DDS to some interfaces (rustdds 0.15)
+//!
+//! [`DomainParticipantBuilder::with_only_networks`] takes the IP addresses of
+//! the interfaces DDS may use. With `[ros2] interfaces = ["lo"]` that is
+//! 127.0.0.1, and then (read from rustdds 0.15.1's sources):
+//! - the participant advertises unicast locators on 127.0.0.1 only (SPDP and
+//!   SEDP), so peers send to loopback only;
+//! - multicast is joined and sent only on the listed interfaces that are
+//!   multicast-capable. Linux's `lo` is not (no MULTICAST flag), so no
+//!   multicast socket is made at all: no multicast leaves the machine, and none
+//!   goes anywhere;
+//! - discovery then runs on "same-host loopback" (`same_host_loopback(true)`,
+//!   rustdds' default, set here explicitly): SPDP goes unicast to
+//!   127.0.0.1 at the well-known discovery ports of participant ids 0..12
+//!   (7400 + 250 x domain + 10 + 2 x id, the RTPS port mapping), and a peer
+//!   whose packets come from a loopback address is answered on its loopback
+//!   locator. Cyclone DDS with `AllowMulticast=false` and
+//!   `Peers=127.0.0.1` sends its SPDP to the same ports of participant indices
+//!   0..MaxAutoParticipantIndex, and rustdds listens on the first free one of
+//!   them, so each finds the other with no multicast at all.
+//!
+//! It is not a firewall: rustdds' unicast sockets are bound to 0.0.0.0 (a
+//! datagram sent to another address of the machine is still read), but nothing
+//! tells any peer elsewhere where to send, and this participant sends only to
+//! the locators peers advertise. Checked on the test machine: tcpdump on eth0
+//! saw no UDP (nor IGMP) packet while the loopback tests and the Cyclone DDS
+//! interop test ran, and on `lo` the whole exchange. Empty `interfaces` is
+//! rustdds' default: every interface, multicast discovery on 239.255.0.1.
+
+use crate::Ros2Config;
+use crate::convert::{self, Rejection};
+use crate::msgs::{CameraInfo, DiagnosticArray, Image, PointCloud2, PoseArray, PoseStamped, RosMessage};
+use futures::StreamExt;
+use futures::channel::oneshot;
+use outlet_protocol::wire::HolePosesMsg;
+use ros2_client::dds::rustdds::{DomainParticipant, DomainParticipantBuilder};
+use ros2_client::dds::{Context, Node, Publisher, Subscription};
+use ros2_client::qos::{History, WhenFull};
+use ros2_client::{Name, NodeName, NodeOptions, QosProfile};
+use std::net::IpAddr;
+use std::time::Duration;
+
+/// Why the bridge could not be set up, or a message not sent.
+#[derive(Debug, thiserror::Error)]
+pub enum BridgeError {
+    #[error("network interface {name:?}: {reason}")]
+    Interface { name: String, reason: String },
+    #[error("{what}: {detail}")]
+    Dds { what: String, detail: String },
+    #[error(transparent)]
+    Rejected(#[from] Rejection),
+}
+
+fn dds(what: impl Into<String>, e: impl std::fmt::Debug) -> BridgeError {
+    BridgeError::Dds { what: what.into(), detail: format!("{e:?}") }
+}
+
+/// What camera drivers publish with ("sensor data"): best-effort, volatile,
+/// the last 5. A best-effort reader matches best-effort and reliable writers,
+/// volatile and transient-local ones alike, so every input uses it (camera
+/// info included: drivers often publish it best-effort too).
+pub const SENSOR_QOS: QosProfile = QosProfile::subscription_default().history(History::KeepLast { depth: 5 });
+
+/// The outputs: reliable, volatile, the last 10. A `publish` waits at most
+/// 20 ms for a full send window (a reader that stopped acknowledging).
+pub const RESULT_QOS: QosProfile = QosProfile::publisher_default()
+    .reliability_reliable(WhenFull::Wait(Duration::from_millis(20)))
+    .history(History::KeepLast { depth: 10 });
+
+/// Keeps only the errors of rustdds' and ros2-client's logs (they log through
+/// the `log` crate) unless RUST_LOG is set. On loopback only, rustdds 0.15
+/// warns on every message its own participant sends itself ("No locators for
+/// RtpsReaderProxy", tens a second): it matches itself as a remote
+/// participant whose only locators are loopback ones, which it uses only for a
+/// peer it has heard from a loopback address. Harmless, and too many to read.
+pub fn quiet_dds_logs() {
+    if std::env::var_os("RUST_LOG").is_none() {
+        log::set_max_level(log::LevelFilter::Error);
+    }
+}
+
+/// A ROS 2 topic name (`/camera/image_raw`), checked as ros2-client checks it.
+pub fn topic_name(topic: &str) -> Result<Name, String> {
+    Name::parse(topic).map_err(|e| format!("{topic:?} is not a ROS 2 topic name ({e})"))
+}
+
+/// The IPv4 addresses of `interfaces`, each a name (`lo`, `eth0`) or an
+/// address of this machine (`127.0.0.1`).
+pub fn interface_addresses(interfaces: &[String]) -> Result<Vec<IpAddr>, BridgeError> {
+    let local = netdev::get_interfaces();
+    let mut addresses = Vec::new();
+    for name in interfaces {
+        let found: Vec<IpAddr> = match name.parse::<IpAddr>() {
+            Ok(ip) => {
+                local.iter().flat_map(|i| i.ipv4.iter().map(|n| IpAddr::V4(n.addr()))).filter(|a| *a == ip).collect()
+            }
+            Err(_) => local
+                .iter()
+                .filter(|i| &i.name == name)
+                .flat_map(|i| i.ipv4.iter().map(|n| IpAddr::V4(n.addr())))
+                .collect(),
+        };
+        if found.is_empty() {
+            let known: Vec<&str> = local.iter().map(|i| i.name.as_str()).collect();
+            return Err(BridgeError::Interface {
+                name: name.clone(),
+                reason: format!(
+                    "no such interface with an IPv4 address on this machine (rustdds speaks IPv4; interfaces: {})",
+                    known.join(", ")
+                ),
+            });
+        }
+        addresses.extend(found);
+    }
+    addresses.dedup();
+    Ok(addresses)
+}
+
+/// A rustdds DomainParticipant in `config.domain_id` on `config.interfaces`
+/// only (every interface when empty); see the module's documentation.
+pub fn participant(config: &Ros2Config) -> Result<DomainParticipant, BridgeError> {
+    let mut builder = DomainParticipantBuilder::new(config.domain_id).same_host_loopback(true);
+    if !config.interfaces.is_empty() {
+        let addresses = interface_addresses(&config.interfaces)?;
+        tracing::info!("DDS domain {} on {} only ({addresses:?})", config.domain_id, config.interfaces.join(", "));
+        builder = builder.with_only_networks(addresses);
+    } else {
+        tracing::info!("DDS domain {} on every interface", config.domain_id);
+    }
+    builder.build().map_err(|e| dds(format!("DDS participant in domain {}", config.domain_id), e))
+}
+
+/// A ros2-client context on [`participant`].
+pub fn context(config: &Ros2Config) -> Result<Context, BridgeError> {
+    Context::from_domain_participant(participant(config)?).map_err(|e| dds("ROS 2 context", e))
+}
+
+/// A node named `name` in the root namespace, without rosout logging or
+/// parameter services (the bridge has neither).
+pub fn node(context: &Context, name: &str) -> Result<Node, BridgeError> {
+    let node_name = NodeName::new("/", name).map_err(|e| dds(format!("node name {name:?}"), e))?;
+    context
+        .new_node(node_name, NodeOptions::new().enable_rosout(false).start_parameter_services(false))
+        .map_err(|e| dds(format!("node {name}"), e))
+}
+
+/// A publisher of `M` on `topic`.
+pub fn publisher<M: RosMessage>(node: &mut Node, topic: &str, qos: &QosProfile) -> Result<Publisher<M>, BridgeError> {
+    let name = topic_name(topic).map_err(|e| dds("topic", e))?;
+    let t = node.create_topic(&name, M::type_name(), qos).map_err(|e| dds(format!("topic {topic}"), e))?;
+    node.create_publisher(&t, Some(qos.clone())).map_err(|e| dds(format!("publisher on {topic}"), e))
+}
+
+/// A subscription to `M` on `topic`.
+pub fn subscription<M: RosMessage>(
+    node: &mut Node,
+    topic: &str,
+    qos: &QosProfile,
+) -> Result<Subscription<M>, BridgeError> {
+    let name = topic_name(topic).map_err(|e| dds("topic", e))?;
+    let t = node.create_topic(&name, M::type_name(), qos).map_err(|e| dds(format!("topic {topic}"), e))?;
+    node.create_subscription(&t, Some(qos.clone())).map_err(|e| dds(format!("subscription to {topic}"), e))
+}
+
+/// What came in from ROS 2.
+#[derive(Debug)]
+pub enum Input {
+    Image(Image),
+    /// Boxed: the largest message by far on the stack, and the rarest.
+    CameraInfo(Box<CameraInfo>),
+    Points(PointCloud2),
+    /// A sample that did not decode as its type (`topic` is the configured key).
+    Undecodable {
+        topic: &'static str,
+        reason: String,
+    },
+}
+
+/// Ends [`Inputs::run`]: [`StopHandle::stop`], or dropping the handle.
+pub struct Stop(oneshot::Receiver<()>);
+
+/// The other end of a [`Stop`].
+pub struct StopHandle(oneshot::Sender<()>);
+
+impl Stop {
+    pub fn new() -> (StopHandle, Stop) {
+        let (tx, rx) = oneshot::channel();
+        (StopHandle(tx), Stop(rx))
+    }
+}
+
+impl StopHandle {
+    pub fn stop(self) {
+        // The receiver gone means the inputs ended already.
+        let _ = self.0.send(());
+    }
+}
+
+/// The subscriptions, to be run on a thread of their own ([`Inputs::run`]).
+pub struct Inputs {
+    image: Subscription<Image>,
+    camera_info: Subscription<CameraInfo>,
+    points: Subscription<PointCloud2>,
+}
+
+impl Inputs {
+    /// Hands each message to `on_input` as it arrives, until `stop`. It waits
+    /// on the subscriptions' async streams (woken by rustdds' event loop, no
+    /// polling) in a single-threaded executor.
+    pub fn run(self, stop: Stop, mut on_input: impl FnMut(Input)) {
+        let Inputs { image, camera_info, points } = self;
+        futures::executor::block_on(async move {
+            let images = image.async_stream();
+            let infos = camera_info.async_stream();
+            let clouds = points.async_stream();
+            futures::pin_mut!(images, infos, clouds);
+            let mut stop = stop.0;
+            let undecodable =
+                |topic: &'static str, e: ros2_client::ReadError| Input::Undecodable { topic, reason: format!("{e:?}") };
+            loop {
+                futures::select! {
+                    m = images.next() => match m {
+                        Some(Ok((msg, _))) => on_input(Input::Image(msg)),
+                        Some(Err(e)) => on_input(undecodable("image", e)),
+                        None => break,
+                    },
+                    m = infos.next() => match m {
+                        Some(Ok((msg, _))) => on_input(Input::CameraInfo(Box::new(msg))),
+                        Some(Err(e)) => on_input(undecodable("camera_info", e)),
+                        None => break,
+                    },
+                    m = clouds.next() => match m {
+                        Some(Ok((msg, _))) => on_input(Input::Points(msg)),
+                        Some(Err(e)) => on_input(undecodable("points", e)),
+                        None => break,
+                    },
+                    _ = stop => break,
+                    complete => break,
+                }
+            }
+        });
+    }
+}
+
+/// The bridge's ROS 2 node: its inputs (taken once, to run on their own
+/// thread) and its publishers. To end, stop the inputs, then drop the bridge
+/// (the DDS participant goes last, after every reader and writer).
+///
+/// The node runs no ros2-client spinner: the bridge needs none of what it
+/// serves (parameters, simulated time, graph events). The node is still
+/// announced on `ros_discovery_info` (by its context), so `ros2 node list`
+/// shows `/outlet_ros2_bridge`.
+pub struct Bridge {
+    holes: Publisher<PoseArray>,
+    pose: Publisher<PoseStamped>,
+    diagnostics: Publisher<DiagnosticArray>,
+    inputs: Option<Inputs>,
+    frame_id: String,
+    // Dropped after the publishers and subscriptions: the node, then the participant.
+    _node: Node,
+    _context: Context,
+}
+
+impl Bridge {
+    /// The node `outlet_ros2_bridge` with its subscriptions and publishers, on
+    /// the configured domain and interfaces.
+    pub fn new(config: &Ros2Config) -> Result<Self, BridgeError> {
+        let context = context(config)?;
+        let mut node = node(&context, "outlet_ros2_bridge")?;
+        let topics = &config.topics;
+        let inputs = Inputs {
+            image: subscription(&mut node, &topics.image, &SENSOR_QOS)?,
+            camera_info: subscription(&mut node, &topics.camera_info, &SENSOR_QOS)?,
+            points: subscription(&mut node, &topics.points, &SENSOR_QOS)?,
+        };
+        Ok(Self {
+            holes: publisher(&mut node, &topics.holes, &RESULT_QOS)?,
+            pose: publisher(&mut node, &topics.pose, &RESULT_QOS)?,
+            diagnostics: publisher(&mut node, &topics.diagnostics, &RESULT_QOS)?,
+            inputs: Some(inputs),
+            frame_id: config.frame_id.clone(),
+            _node: node,
+            _context: context,
+        })
+    }
+
+    /// The subscriptions, once.
+    pub fn take_inputs(&mut self) -> Option<Inputs> {
+        self.inputs.take()
+    }
+
+    /// Publishes one frame's hole poses: a PoseArray on the holes topic and a
+    /// PoseStamped on the pose topic.
+    pub fn publish_poses(&self, msg: &HolePosesMsg) -> Result<(), BridgeError> {
+        let (array, stamped) = convert::poses_of(msg, &self.frame_id)?;
+        self.holes.publish(array).map_err(|e| dds("publishing the hole poses", e))?;
+        self.pose.publish(stamped).map_err(|e| dds("publishing the outlet pose", e))
+    }
+
+    pub fn publish_diagnostics(&self, array: DiagnosticArray) -> Result<(), BridgeError> {
+        self.diagnostics.publish(array).map_err(|e| dds("publishing diagnostics", e))
+    }
+}

@@ -1,0 +1,146 @@
+//! The ROS 2 side of `outlet serve ros2-bridge`: camera images, their camera
+//! info and point clouds come in from ROS 2, hole poses and the services'
+//! diagnostics go out to it.
+//!
+//! - [`msgs`]: the ROS 2 messages, each with its DDS type name.
+//! - [`convert`]: ROS 2 messages to and from the sidecar's wire types, pure
+//!   functions that check everything that comes from the network.
+//! - [`bridge`]: the DDS participant (ros2-client on rustdds) on the configured
+//!   network interfaces only, its subscriptions and publishers.
+//!
+//! The shared-memory side (iceoryx2) is the `outlet` command's
+//! (`services/outlet/src/serve/ros2_bridge.rs`).
+
+pub mod bridge;
+pub mod convert;
+pub mod msgs;
+
+pub use bridge::{Bridge, BridgeError, Input, Inputs, Stop};
+pub use convert::Rejection;
+/// The ros2-client this crate is built on, for programs that talk to the bridge.
+pub use ros2_client;
+
+use serde::{Deserialize, Serialize};
+
+/// The `[ros2]` table of the sidecar's configuration.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Ros2Config {
+    /// The DDS domain id (ROS_DOMAIN_ID), 0..=232.
+    pub domain_id: u16,
+    /// Network interfaces (names such as `lo`, or IPv4 addresses) DDS may use;
+    /// `["lo"]` confines it to loopback; empty: every interface (rustdds' default).
+    pub interfaces: Vec<String>,
+    /// The frame_id of the published headers: the camera's optical frame.
+    pub frame_id: String,
+    pub topics: Ros2Topics,
+}
+
+/// ROS 2 topic names of the bridge.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Ros2Topics {
+    /// In: sensor_msgs/Image (mono8, rgb8, bgr8), best-effort.
+    pub image: String,
+    /// In: sensor_msgs/CameraInfo of the images (plumb_bob or no distortion).
+    pub camera_info: String,
+    /// In: sensor_msgs/PointCloud2 with float32 x, y, z, best-effort.
+    pub points: String,
+    /// Out: geometry_msgs/PoseArray, one pose per hole, reliable.
+    pub holes: String,
+    /// Out: geometry_msgs/PoseStamped of the outlet, reliable.
+    pub pose: String,
+    /// Out: diagnostic_msgs/DiagnosticArray of the services' heartbeats, reliable.
+    pub diagnostics: String,
+}
+
+impl Default for Ros2Config {
+    fn default() -> Self {
+        Self {
+            domain_id: 0,
+            interfaces: Vec::new(),
+            frame_id: "camera_optical_frame".into(),
+            topics: Ros2Topics::default(),
+        }
+    }
+}
+
+impl Default for Ros2Topics {
+    fn default() -> Self {
+        Self {
+            image: "/camera/image_raw".into(),
+            camera_info: "/camera/camera_info".into(),
+            points: "/camera/points".into(),
+            holes: "/outlet/holes".into(),
+            pose: "/outlet/pose".into(),
+            diagnostics: "/diagnostics".into(),
+        }
+    }
+}
+
+/// The largest DDS domain id whose RTPS ports (7400 + 250 x domain + ...) fit in 16 bits.
+pub const MAX_DOMAIN_ID: u16 = 232;
+
+impl Ros2Topics {
+    /// Each topic with its key in the file.
+    pub fn named(&self) -> [(&'static str, &str); 6] {
+        [
+            ("image", &self.image),
+            ("camera_info", &self.camera_info),
+            ("points", &self.points),
+            ("holes", &self.holes),
+            ("pose", &self.pose),
+            ("diagnostics", &self.diagnostics),
+        ]
+    }
+}
+
+impl Ros2Config {
+    /// Refuses values the bridge cannot run with, naming the key under `ros2`.
+    pub fn check(&self) -> Result<(), String> {
+        if self.domain_id > MAX_DOMAIN_ID {
+            return Err(format!("key `ros2.domain_id`: {} is not in 0..={MAX_DOMAIN_ID}", self.domain_id));
+        }
+        if let Some(bad) = self.interfaces.iter().find(|i| i.trim().is_empty() || i.trim() != i.as_str()) {
+            return Err(format!("key `ros2.interfaces`: {bad:?} is not an interface name"));
+        }
+        if self.frame_id.is_empty() {
+            return Err("key `ros2.frame_id`: empty".into());
+        }
+        for (key, topic) in self.topics.named() {
+            bridge::topic_name(topic).map_err(|e| format!("key `ros2.topics.{key}`: {e}"))?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_defaults_are_the_ros2_conventions_and_pass_the_checks() {
+        let c = Ros2Config::default();
+        assert_eq!(c.domain_id, 0);
+        assert!(c.interfaces.is_empty());
+        assert_eq!(c.topics.image, "/camera/image_raw");
+        assert_eq!(c.topics.holes, "/outlet/holes");
+        assert_eq!(c.check(), Ok(()));
+    }
+
+    #[test]
+    fn bad_values_are_named() {
+        let c = Ros2Config { domain_id: 233, ..Ros2Config::default() };
+        assert!(c.check().expect_err("domain").contains("ros2.domain_id"));
+        let c = Ros2Config { interfaces: vec![String::new()], ..Ros2Config::default() };
+        assert!(c.check().expect_err("interface").contains("ros2.interfaces"));
+        let mut c = Ros2Config::default();
+        c.topics.holes = "/outlet//holes".into();
+        assert!(c.check().expect_err("topic").contains("ros2.topics.holes"));
+        let mut c = Ros2Config::default();
+        c.topics.image = "camera image".into();
+        assert!(c.check().expect_err("topic").contains("ros2.topics.image"));
+        let c = Ros2Config { frame_id: String::new(), ..Ros2Config::default() };
+        assert!(c.check().expect_err("frame").contains("ros2.frame_id"));
+    }
+}

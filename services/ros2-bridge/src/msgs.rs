@@ -1,0 +1,355 @@
+//! Every ROS 2 message the bridge reads or writes, written once, by hand.
+//!
+//! Each struct lists its fields in the order of its ROS 2 `.msg` definition
+//! (Humble and newer; the layouts have not changed since), because plain CDR,
+//! the encoding ROS 2 uses over DDS, is that order with no field names. Each
+//! type carries its ROS 2 package and name, and the DDS type name ROS 2 gives
+//! it (`geometry_msgs::msg::dds_::PoseArray_`): a reader and a writer match
+//! only when the type names are the same.
+//!
+//! `uint8[]` fields (`Image.data`, `PointCloud2.data`) are (de)serialized as
+//! byte strings: the same CDR bytes as a sequence of octets (a u32 count, the
+//! bytes), read and written in one copy rather than one call per byte.
+
+use ros2_client::MessageTypeName;
+use serde::{Deserialize, Serialize};
+
+/// A ROS 2 message type: its package, name and DDS type name.
+pub trait RosMessage: Serialize + for<'de> Deserialize<'de> + 'static {
+    /// `sensor_msgs`, `geometry_msgs`, ...
+    const PACKAGE: &'static str;
+    /// `Image`, `PoseArray`, ...
+    const NAME: &'static str;
+    /// The type name on DDS: `<package>::msg::dds_::<name>_`.
+    const DDS_TYPE: &'static str;
+
+    /// The type name as ros2-client takes it.
+    fn type_name() -> MessageTypeName {
+        MessageTypeName::new(Self::PACKAGE, Self::NAME)
+    }
+}
+
+macro_rules! ros_message {
+    ($ty:ty, $package:literal, $name:literal) => {
+        impl RosMessage for $ty {
+            const PACKAGE: &'static str = $package;
+            const NAME: &'static str = $name;
+            const DDS_TYPE: &'static str = concat!($package, "::msg::dds_::", $name, "_");
+        }
+    };
+}
+
+/// `builtin_interfaces/Time`: seconds and nanoseconds since the Unix epoch
+/// (ROS time; the bridge reads and writes wall-clock stamps).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Time {
+    pub sec: i32,
+    pub nanosec: u32,
+}
+ros_message!(Time, "builtin_interfaces", "Time");
+
+/// `std_msgs/Header`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Header {
+    pub stamp: Time,
+    /// The coordinate frame of the data (`camera_optical_frame`).
+    pub frame_id: String,
+}
+ros_message!(Header, "std_msgs", "Header");
+
+/// `geometry_msgs/Point` (metres in this bridge).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Point {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+}
+ros_message!(Point, "geometry_msgs", "Point");
+
+/// `geometry_msgs/Quaternion`: x, y, z, then w.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Quaternion {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+    pub w: f64,
+}
+ros_message!(Quaternion, "geometry_msgs", "Quaternion");
+
+impl Default for Quaternion {
+    /// The identity rotation, as ROS 2 initialises it.
+    fn default() -> Self {
+        Self { x: 0.0, y: 0.0, z: 0.0, w: 1.0 }
+    }
+}
+
+/// `geometry_msgs/Pose`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Pose {
+    pub position: Point,
+    pub orientation: Quaternion,
+}
+ros_message!(Pose, "geometry_msgs", "Pose");
+
+/// `geometry_msgs/PoseArray`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PoseArray {
+    pub header: Header,
+    pub poses: Vec<Pose>,
+}
+ros_message!(PoseArray, "geometry_msgs", "PoseArray");
+
+/// `geometry_msgs/PoseStamped`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PoseStamped {
+    pub header: Header,
+    pub pose: Pose,
+}
+ros_message!(PoseStamped, "geometry_msgs", "PoseStamped");
+
+/// `sensor_msgs/Image`: `height` rows of `step` bytes.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Image {
+    pub header: Header,
+    pub height: u32,
+    pub width: u32,
+    /// `mono8`, `rgb8`, `bgr8`, ... (sensor_msgs/image_encodings.hpp).
+    pub encoding: String,
+    pub is_bigendian: u8,
+    /// Bytes per row.
+    pub step: u32,
+    #[serde(with = "serde_bytes")]
+    pub data: Vec<u8>,
+}
+ros_message!(Image, "sensor_msgs", "Image");
+
+/// `sensor_msgs/RegionOfInterest`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct RegionOfInterest {
+    pub x_offset: u32,
+    pub y_offset: u32,
+    pub height: u32,
+    pub width: u32,
+    pub do_rectify: bool,
+}
+ros_message!(RegionOfInterest, "sensor_msgs", "RegionOfInterest");
+
+/// `sensor_msgs/CameraInfo`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct CameraInfo {
+    pub header: Header,
+    pub height: u32,
+    pub width: u32,
+    /// `plumb_bob` (k1, k2, t1, t2, k3), `rational_polynomial`, `equidistant`, ...
+    pub distortion_model: String,
+    pub d: Vec<f64>,
+    /// Intrinsics, row-major 3x3: fx 0 cx / 0 fy cy / 0 0 1.
+    pub k: [f64; 9],
+    /// Rectification rotation, row-major 3x3.
+    pub r: [f64; 9],
+    /// Projection, row-major 3x4.
+    pub p: [f64; 12],
+    pub binning_x: u32,
+    pub binning_y: u32,
+    pub roi: RegionOfInterest,
+}
+ros_message!(CameraInfo, "sensor_msgs", "CameraInfo");
+
+/// `sensor_msgs/PointField`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct PointField {
+    pub name: String,
+    /// Byte offset of the field in a point.
+    pub offset: u32,
+    /// One of the `PointField::*` data type constants.
+    pub datatype: u8,
+    /// Elements of the field per point.
+    pub count: u32,
+}
+ros_message!(PointField, "sensor_msgs", "PointField");
+
+impl PointField {
+    pub const INT8: u8 = 1;
+    pub const UINT8: u8 = 2;
+    pub const INT16: u8 = 3;
+    pub const UINT16: u8 = 4;
+    pub const INT32: u8 = 5;
+    pub const UINT32: u8 = 6;
+    pub const FLOAT32: u8 = 7;
+    pub const FLOAT64: u8 = 8;
+
+    /// The name of a data type constant, for messages.
+    pub fn datatype_name(datatype: u8) -> &'static str {
+        match datatype {
+            Self::INT8 => "int8",
+            Self::UINT8 => "uint8",
+            Self::INT16 => "int16",
+            Self::UINT16 => "uint16",
+            Self::INT32 => "int32",
+            Self::UINT32 => "uint32",
+            Self::FLOAT32 => "float32",
+            Self::FLOAT64 => "float64",
+            _ => "unknown",
+        }
+    }
+}
+
+/// `sensor_msgs/PointCloud2`: `height` rows of `row_step` bytes, each row
+/// `width` points of `point_step` bytes.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct PointCloud2 {
+    pub header: Header,
+    pub height: u32,
+    pub width: u32,
+    pub fields: Vec<PointField>,
+    pub is_bigendian: bool,
+    pub point_step: u32,
+    pub row_step: u32,
+    #[serde(with = "serde_bytes")]
+    pub data: Vec<u8>,
+    pub is_dense: bool,
+}
+ros_message!(PointCloud2, "sensor_msgs", "PointCloud2");
+
+/// `diagnostic_msgs/KeyValue`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct KeyValue {
+    pub key: String,
+    pub value: String,
+}
+ros_message!(KeyValue, "diagnostic_msgs", "KeyValue");
+
+/// `diagnostic_msgs/DiagnosticStatus`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct DiagnosticStatus {
+    /// `DiagnosticStatus::OK`, `WARN`, `ERROR` or `STALE` (ROS `byte`).
+    pub level: u8,
+    pub name: String,
+    pub message: String,
+    pub hardware_id: String,
+    pub values: Vec<KeyValue>,
+}
+ros_message!(DiagnosticStatus, "diagnostic_msgs", "DiagnosticStatus");
+
+impl DiagnosticStatus {
+    pub const OK: u8 = 0;
+    pub const WARN: u8 = 1;
+    pub const ERROR: u8 = 2;
+    pub const STALE: u8 = 3;
+}
+
+/// `diagnostic_msgs/DiagnosticArray`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct DiagnosticArray {
+    pub header: Header,
+    pub status: Vec<DiagnosticStatus>,
+}
+ros_message!(DiagnosticArray, "diagnostic_msgs", "DiagnosticArray");
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use byteorder::LittleEndian;
+    use ros2_client::dds::rustdds::cdr_encoding;
+
+    fn dds_type<M: RosMessage>() -> (String, &'static str) {
+        (M::type_name().dds_msg_type(), M::DDS_TYPE)
+    }
+
+    #[test]
+    fn type_names_are_the_ones_ros2_gives_over_dds() {
+        assert_eq!(PoseArray::DDS_TYPE, "geometry_msgs::msg::dds_::PoseArray_");
+        assert_eq!(Image::DDS_TYPE, "sensor_msgs::msg::dds_::Image_");
+        assert_eq!(DiagnosticArray::DDS_TYPE, "diagnostic_msgs::msg::dds_::DiagnosticArray_");
+        for (made, constant) in [
+            dds_type::<Time>(),
+            dds_type::<Header>(),
+            dds_type::<Point>(),
+            dds_type::<Quaternion>(),
+            dds_type::<Pose>(),
+            dds_type::<PoseArray>(),
+            dds_type::<PoseStamped>(),
+            dds_type::<Image>(),
+            dds_type::<RegionOfInterest>(),
+            dds_type::<CameraInfo>(),
+            dds_type::<PointField>(),
+            dds_type::<PointCloud2>(),
+            dds_type::<KeyValue>(),
+            dds_type::<DiagnosticStatus>(),
+            dds_type::<DiagnosticArray>(),
+        ] {
+            assert_eq!(made, constant);
+        }
+    }
+
+    fn cdr<T: Serialize>(value: &T) -> Vec<u8> {
+        cdr_encoding::to_vec::<T, LittleEndian>(value).expect("serialises")
+    }
+
+    #[test]
+    fn an_image_is_laid_out_as_ros2_lays_it_out() {
+        let image = Image {
+            header: Header { stamp: Time { sec: 1, nanosec: 2 }, frame_id: "cam".into() },
+            height: 1,
+            width: 2,
+            encoding: "mono8".into(),
+            is_bigendian: 0,
+            step: 2,
+            data: vec![7, 9],
+        };
+        #[rustfmt::skip]
+        let expected: Vec<u8> = vec![
+            1, 0, 0, 0, 2, 0, 0, 0,           // stamp: sec, nanosec
+            4, 0, 0, 0, b'c', b'a', b'm', 0,  // frame_id, NUL-terminated
+            1, 0, 0, 0, 2, 0, 0, 0,           // height, width
+            6, 0, 0, 0, b'm', b'o', b'n', b'o', b'8', 0, // encoding
+            0,                                // is_bigendian
+            0,                                // padding to 4
+            2, 0, 0, 0,                       // step
+            2, 0, 0, 0, 7, 9,                 // data: count, bytes
+        ];
+        assert_eq!(cdr(&image), expected);
+        let (back, _) = cdr_encoding::from_bytes::<Image, LittleEndian>(&expected).expect("decodes");
+        assert_eq!(back, image);
+    }
+
+    #[test]
+    fn pose_arrays_and_clouds_round_trip_through_cdr() {
+        let poses = PoseArray {
+            header: Header { stamp: Time { sec: 5, nanosec: 6 }, frame_id: "f".into() },
+            poses: vec![Pose { position: Point { x: 1.0, y: 2.0, z: 3.0 }, orientation: Quaternion::default() }; 2],
+        };
+        let bytes = cdr(&poses);
+        // Header (8 + 4 + 2 bytes, padded to 16), count 4 bytes, padding to 8, then 2 x 7 doubles.
+        assert_eq!(bytes.len(), 16 + 4 + 4 + 2 * 56);
+        assert_eq!(cdr_encoding::from_bytes::<PoseArray, LittleEndian>(&bytes).expect("decodes").0, poses);
+        let cloud = PointCloud2 {
+            header: Header::default(),
+            height: 1,
+            width: 1,
+            fields: vec![PointField { name: "x".into(), offset: 0, datatype: PointField::FLOAT32, count: 1 }],
+            is_bigendian: false,
+            point_step: 4,
+            row_step: 4,
+            data: 1.5f32.to_le_bytes().to_vec(),
+            is_dense: true,
+        };
+        assert_eq!(cdr_encoding::from_bytes::<PointCloud2, LittleEndian>(&cdr(&cloud)).expect("decodes").0, cloud);
+    }
+
+    #[test]
+    fn truncated_messages_fail_to_decode_without_panicking() {
+        let image = Image { width: 4, height: 4, step: 4, data: vec![1; 16], ..Image::default() };
+        let bytes = cdr(&image);
+        for cut in 0..bytes.len() {
+            assert!(cdr_encoding::from_bytes::<Image, LittleEndian>(&bytes[..cut]).is_err(), "cut at {cut}");
+        }
+        // Sequence counts far larger than the message: the fields', then the data's.
+        let cloud = cdr(&PointCloud2::default());
+        for at in [24, 40] {
+            let mut huge = cloud.clone();
+            huge[at..at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+            assert!(cdr_encoding::from_bytes::<PointCloud2, LittleEndian>(&huge).is_err(), "count at {at}");
+        }
+    }
+}

@@ -1,0 +1,167 @@
+//! The bridge's DDS side against a second ros2-client participant in this
+//! process: images, camera info and clouds reach the bridge's inputs, hole
+//! poses and diagnostics reach a subscriber, with the ROS 2 types and QoS.
+//!
+//! LOOPBACK ONLY: both participants are built with `interfaces = ["lo"]`, i.e.
+//! a rustdds DomainParticipant whose only network is 127.0.0.1 (no multicast:
+//! `lo` is not multicast-capable; discovery is unicast to 127.0.0.1). The DDS
+//! domain id is this test process's own (from its pid, in 1..=200).
+
+use outlet_protocol::wire::{HeartbeatMsg, HolePosesMsg, MAX_HOLES, SCHEMA_VERSION};
+use outlet_ros2_bridge::bridge::{self, Stop};
+use outlet_ros2_bridge::msgs::{
+    CameraInfo, DiagnosticArray, Header, Image, PointCloud2, PointField, PoseArray, PoseStamped, Time,
+};
+use outlet_ros2_bridge::ros2_client::QosProfile;
+use outlet_ros2_bridge::{Bridge, Input, Ros2Config};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+fn loopback_config() -> Ros2Config {
+    Ros2Config {
+        domain_id: (1 + std::process::id() % 200) as u16,
+        interfaces: vec!["lo".into()],
+        ..Ros2Config::default()
+    }
+}
+
+fn stamp() -> Header {
+    Header { stamp: Time { sec: 1_700_000_000, nanosec: 5 }, frame_id: "cam".into() }
+}
+
+#[test]
+fn interface_names_and_addresses_resolve_and_unknown_ones_are_refused() {
+    let lo = bridge::interface_addresses(&["lo".into()]).expect("lo");
+    assert_eq!(lo, vec![std::net::IpAddr::from([127, 0, 0, 1])]);
+    assert_eq!(bridge::interface_addresses(&["127.0.0.1".into()]).expect("address"), lo);
+    let e = bridge::interface_addresses(&["no-such-if0".into()]).expect_err("unknown");
+    assert!(e.to_string().contains("no-such-if0"), "{e}");
+    assert!(bridge::interface_addresses(&["10.254.254.254".into()]).is_err(), "not an address of this machine");
+}
+
+#[test]
+fn messages_cross_dds_on_loopback_both_ways() {
+    let config = loopback_config();
+    let mut bridge = Bridge::new(&config).expect("bridge");
+    let inputs = bridge.take_inputs().expect("inputs");
+    let (stop_handle, stop) = Stop::new();
+    let (tx, rx) = mpsc::channel();
+    let runner = std::thread::spawn(move || {
+        inputs.run(stop, |input| {
+            let _ = tx.send(input);
+        })
+    });
+
+    // The peer: another participant, loopback only as well.
+    let context = bridge::context(&config).expect("peer context");
+    let mut peer = bridge::node(&context, "test_peer").expect("peer node");
+    let topics = &config.topics;
+    let sensor = QosProfile::subscription_default();
+    let image_pub = bridge::publisher::<Image>(&mut peer, &topics.image, &sensor).expect("image publisher");
+    let info_pub = bridge::publisher::<CameraInfo>(&mut peer, &topics.camera_info, &bridge::RESULT_QOS).expect("info");
+    let cloud_pub = bridge::publisher::<PointCloud2>(&mut peer, &topics.points, &bridge::RESULT_QOS).expect("cloud");
+    let holes_sub = bridge::subscription::<PoseArray>(&mut peer, &topics.holes, &bridge::RESULT_QOS).expect("holes");
+    let pose_sub = bridge::subscription::<PoseStamped>(&mut peer, &topics.pose, &bridge::RESULT_QOS).expect("pose");
+    let diag_sub =
+        bridge::subscription::<DiagnosticArray>(&mut peer, &topics.diagnostics, &bridge::RESULT_QOS).expect("diag");
+
+    let image = Image {
+        header: stamp(),
+        height: 480,
+        width: 640,
+        encoding: "rgb8".into(),
+        is_bigendian: 0,
+        step: 1920,
+        data: (0..1920 * 480).map(|v| (v % 251) as u8).collect(),
+    };
+    let info = CameraInfo {
+        header: stamp(),
+        height: 480,
+        width: 640,
+        distortion_model: "plumb_bob".into(),
+        d: vec![0.0; 5],
+        k: [525.0, 0.0, 319.5, 0.0, 525.0, 239.5, 0.0, 0.0, 1.0],
+        ..CameraInfo::default()
+    };
+    let cloud = PointCloud2 {
+        header: stamp(),
+        height: 1,
+        width: 3,
+        fields: ["x", "y", "z"]
+            .iter()
+            .enumerate()
+            .map(|(k, n)| PointField { name: n.to_string(), offset: 4 * k as u32, datatype: 7, count: 1 })
+            .collect(),
+        is_bigendian: false,
+        point_step: 12,
+        row_step: 36,
+        data: (0..9).flat_map(|v| (v as f32).to_le_bytes()).collect(),
+        is_dense: true,
+    };
+    let mut positions_m = [[0.0; 3]; MAX_HOLES];
+    positions_m[0] = [0.01, 0.02, 0.5];
+    positions_m[1] = [0.03, 0.02, 0.5];
+    let poses = HolePosesMsg {
+        schema_version: SCHEMA_VERSION,
+        hole_count: 2,
+        frame_id: 9,
+        capture_time_ns: 1_700_000_000_000_000_005,
+        published_ns: 0,
+        mode: 3,
+        reserved: 0,
+        rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        translation_m: [0.02, 0.02, 0.5],
+        kinds: [0; MAX_HOLES],
+        positions_m,
+        covariances_m2: [[0.0; 9]; MAX_HOLES],
+    };
+    let mut beat = HeartbeatMsg::new("detector", 1, 0);
+    beat.published_ns = 1_700_000_000_000_000_000;
+    beat.output_rate_hz = 10.0;
+
+    let (mut got_image, mut got_info, mut got_cloud) = (None, None, None);
+    let (mut got_holes, mut got_pose, mut got_diag) = (None, None, None);
+    let started = Instant::now();
+    while [got_image.is_none(), got_info.is_none(), got_cloud.is_none()].iter().any(|&b| b)
+        || got_holes.is_none()
+        || got_pose.is_none()
+        || got_diag.is_none()
+    {
+        assert!(started.elapsed() < Duration::from_secs(30), "nothing crossed in 30 s");
+        // Discovery takes a moment; until both sides are matched, send again.
+        let _ = image_pub.publish(image.clone());
+        let _ = info_pub.publish(info.clone());
+        let _ = cloud_pub.publish(cloud.clone());
+        bridge.publish_poses(&poses).expect("poses");
+        let array = outlet_ros2_bridge::convert::diagnostics_of(&[beat], beat.published_ns, 3_000_000_000, "test");
+        bridge.publish_diagnostics(array).expect("diagnostics");
+        let wait = Instant::now();
+        while wait.elapsed() < Duration::from_millis(200) {
+            match rx.recv_timeout(Duration::from_millis(20)) {
+                Ok(Input::Image(m)) => got_image = Some(m),
+                Ok(Input::CameraInfo(m)) => got_info = Some(*m),
+                Ok(Input::Points(m)) => got_cloud = Some(m),
+                Ok(Input::Undecodable { topic, reason }) => panic!("{topic}: {reason}"),
+                Err(_) => {}
+            }
+            got_holes = got_holes.or(holes_sub.take().ok().flatten().map(|(m, _)| m));
+            got_pose = got_pose.or(pose_sub.take().ok().flatten().map(|(m, _)| m));
+            got_diag = got_diag.or(diag_sub.take().ok().flatten().map(|(m, _)| m));
+        }
+    }
+    assert_eq!(got_image.as_ref(), Some(&image), "a 900 kB image crosses whole");
+    assert_eq!(got_info.as_ref(), Some(&info));
+    assert_eq!(got_cloud.as_ref(), Some(&cloud));
+    let holes = got_holes.expect("holes");
+    assert_eq!(holes.header.frame_id, "camera_optical_frame");
+    assert_eq!(holes.header.stamp, Time { sec: 1_700_000_000, nanosec: 5 });
+    assert_eq!(holes.poses.len(), 2);
+    assert_eq!(holes.poses[1].position.x, 0.03);
+    assert_eq!(holes.poses[1].orientation.w, 1.0);
+    assert_eq!(got_pose.expect("pose").pose.position.x, 0.02);
+    let diag = got_diag.expect("diagnostics");
+    assert_eq!(diag.status[0].name, "outlet/detector");
+
+    stop_handle.stop();
+    runner.join().expect("the inputs thread ends on stop");
+}
