@@ -82,6 +82,20 @@ impl Sidecar {
 
     /// Starts `outlet serve --domain D <service> <args>`; its log goes to `logs/<service>.log`.
     pub fn start(&mut self, service: &str, args: &[&str]) -> Result<(), String> {
+        let domain = self.domain.clone();
+        self.spawn(&["--domain", &domain, "--heartbeat-ms", "200"], service, args)
+    }
+
+    /// Starts `outlet serve --config FILE <service> <args>`: everything, the
+    /// domain too, from the file (whose `domain` should be this sidecar's); its
+    /// log goes to `logs/<service>.log`.
+    pub fn start_with_config(&mut self, config: &std::path::Path, service: &str, args: &[&str]) -> Result<(), String> {
+        let config = config.to_str().ok_or_else(|| format!("configuration path {} is not UTF-8", config.display()))?;
+        self.spawn(&["--config", config], service, args)
+    }
+
+    /// `outlet serve <serve_args> <service> <args>`, remembered for restarts.
+    fn spawn(&mut self, serve_args: &[&str], service: &str, args: &[&str]) -> Result<(), String> {
         let exe = outlet_exe()?;
         let log = std::fs::OpenOptions::new()
             .create(true)
@@ -89,7 +103,9 @@ impl Sidecar {
             .open(self.log_path(service))
             .map_err(|e| e.to_string())?;
         let child = Command::new(exe)
-            .args(["serve", "--domain", &self.domain, "--heartbeat-ms", "200", service])
+            .arg("serve")
+            .args(serve_args)
+            .arg(service)
             .args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::null())
