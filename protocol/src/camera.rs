@@ -8,11 +8,11 @@ use serde::{Deserialize, Serialize};
 pub enum CameraError {
     #[error("camera size {width}x{height} is empty")]
     EmptyImage { width: u32, height: u32 },
-    #[error("camera focal length fx={fx}, fy={fy} must be finite and positive")]
+    #[error("camera focal length fx={fx}, fy={fy} must be between 1 and 1e7 pixels")]
     BadFocalLength { fx: f64, fy: f64 },
-    #[error("camera principal point ({cx}, {cy}) must be finite")]
+    #[error("camera principal point ({cx}, {cy}) must be finite and within ten image sizes of the image")]
     BadPrincipalPoint { cx: f64, cy: f64 },
-    #[error("distortion coefficient {index} is not finite ({value})")]
+    #[error("distortion coefficient {index} ({value}) must be finite and within ±10000")]
     BadDistortion { index: usize, value: f64 },
 }
 
@@ -37,13 +37,18 @@ impl CameraModel {
         if width == 0 || height == 0 {
             return Err(CameraError::EmptyImage { width, height });
         }
-        if !(fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0) {
+        // A focal length under one pixel is a field of view past 180 degrees, and
+        // one of 1e-37 (a fuzzed CameraInfo) makes every ray infinite.
+        let focal_ok = |f: f64| (1.0..=1e7).contains(&f);
+        if !(focal_ok(fx) && focal_ok(fy)) {
             return Err(CameraError::BadFocalLength { fx, fy });
         }
-        if !(cx.is_finite() && cy.is_finite()) {
+        let near = |c: f64, size: u32| (-10.0 * size as f64..=11.0 * size as f64).contains(&c);
+        if !(near(cx, width) && near(cy, height)) {
             return Err(CameraError::BadPrincipalPoint { cx, cy });
         }
-        if let Some((index, &value)) = distortion.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+        // Calibrated lenses stay far inside ±1e4; 1e306 (a fuzzed CameraInfo) overflows every ray.
+        if let Some((index, &value)) = distortion.iter().enumerate().find(|(_, v)| !(-1e4..=1e4).contains(*v)) {
             return Err(CameraError::BadDistortion { index, value });
         }
         Ok(Self { width, height, fx, fy, cx, cy, distortion })
@@ -143,6 +148,22 @@ impl CameraModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn intrinsics_no_camera_could_have_are_refused_naming_them() {
+        let ok = CameraModel::new(640, 480, [525.0, 525.0, 319.5, 239.5], [0.0; 5]);
+        assert!(ok.is_ok());
+        for (f, c) in [(4e-37, 319.5), (0.5, 319.5), (2e7, 319.5), (f64::NAN, 319.5), (525.0, 1e9), (525.0, -7000.0)] {
+            let err = CameraModel::new(640, 480, [f, 525.0, c, 239.5], [0.0; 5]).expect_err("refused");
+            let named = if f == 525.0 { "principal point" } else { "focal length" };
+            assert!(err.to_string().contains(named), "fx {f}, cx {c}: {err}");
+        }
+        for k in [-3.6e306, 1.1e4, f64::INFINITY, f64::NAN] {
+            let err = CameraModel::new(640, 480, [525.0, 525.0, 319.5, 239.5], [0.01, k, 0.0, 0.0, 0.0])
+                .expect_err("refused");
+            assert!(err.to_string().contains("distortion coefficient 1"), "k2 {k}: {err}");
+        }
+    }
 
     #[test]
     fn undistort_inverts_distort_across_the_image() {

@@ -254,8 +254,13 @@ mod tests {
         let cams = [
             parse_camera_info(WILLOW).expect("valid file"),
             CameraModel::default_vga(),
-            CameraModel::new(7, 3, [1e-7 + 0.1, 3e12, -0.0, 1.0 / 3.0], [1e-300, -2.5e-17, 0.0, 1e15, -1.0])
-                .expect("valid camera"),
+            CameraModel::new(
+                7,
+                3,
+                [1.0 + 1e-13, 9_999_999.123_456_7, -0.0, 1.0 / 3.0],
+                [1e-300, -2.5e-17, 0.0, 9_999.999_999_999_9, -1.0],
+            )
+            .expect("valid camera"),
         ];
         for cam in cams {
             for name in ["narrow_stereo", "", "true", "a: b", "1.5", "it's \"q\"\n"] {
