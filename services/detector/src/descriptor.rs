@@ -182,6 +182,14 @@ impl DescriptorParams {
         if !(self.scale_step > 1.0 && self.scale_range[0] > 0.0 && self.scale_range[0] <= self.scale_range[1]) {
             return bad("scale_step must exceed 1 and scale_range be a positive range");
         }
+        // The test scales run from scale_range[0] to [1] by scale_step: a bounded ladder.
+        let steps = (self.scale_range[1] / self.scale_range[0]).ln() / self.scale_step.ln();
+        if !(steps.is_finite() && steps <= MAX_SCALE_STEPS) {
+            return bad("scale_range and scale_step give more than 100 test scales");
+        }
+        if !self.candidate_extent.iter().all(|e| *e > 0.0 && e.is_finite()) {
+            return bad("candidate_extent must be positive");
+        }
         if self.max_distance.is_nan() || self.background_margin.is_nan() {
             return bad("max_distance and background_margin must be numbers");
         }
@@ -256,9 +264,9 @@ pub struct OneWayDescriptor {
     reference_scale: f64,
 }
 
-/// The serialised form of [`OneWayDescriptor`].
+/// The serialised form of [`OneWayDescriptor`], before its checks.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-struct DescriptorData {
+pub(crate) struct DescriptorData {
     params: DescriptorParams,
     dims: usize,
     mean: Vec<f32>,
@@ -302,6 +310,9 @@ impl TryFrom<DescriptorData> for OneWayDescriptor {
         if !(d.reference_scale > 0.0 && d.reference_scale.is_finite()) {
             return Err(DescriptorError::Inconsistent("reference scale must be positive"));
         }
+        if ![&d.mean, &d.basis, &d.samples].iter().all(|v| v.iter().all(|x| x.is_finite())) {
+            return Err(DescriptorError::Inconsistent("mean, basis or samples hold a value that is not finite"));
+        }
         Ok(Self {
             params: d.params,
             dims: d.dims,
@@ -315,6 +326,8 @@ impl TryFrom<DescriptorData> for OneWayDescriptor {
     }
 }
 
+/// Most test scales a descriptor may ask for (the paper's ladder has 10).
+const MAX_SCALE_STEPS: f64 = 100.0;
 /// Largest supported crop side (keeps per-call buffers on the stack).
 const MAX_CROP: usize = 24;
 /// Samples compared at once, and the padding of vectors.

@@ -26,6 +26,15 @@ pub struct Template {
     pub descriptor: OneWayDescriptor,
 }
 
+/// A template as its file holds it (the same layout as [`Template`]), before
+/// the descriptor's checks.
+#[derive(Deserialize)]
+struct TemplateData {
+    name: String,
+    geometry: OutletGeometry,
+    descriptor: crate::descriptor::DescriptorData,
+}
+
 /// Why a template could not be made or read.
 #[derive(Debug, thiserror::Error)]
 pub enum TemplateError {
@@ -66,6 +75,10 @@ impl Template {
     /// Parses a template file's bytes; `path` names it in errors.
     pub fn from_bytes(bytes: &[u8], path: &str) -> Result<Self, TemplateError> {
         let path = path.to_string();
+        if bytes.len() < MAGIC.len() && MAGIC.starts_with(bytes) {
+            // Empty, or cut inside the magic: a template file that was never finished.
+            return Err(TemplateError::Truncated { path, expected: HEADER_LEN as u64, got: bytes.len() as u64 });
+        }
         if bytes.len() < MAGIC.len() || &bytes[..MAGIC.len()] != MAGIC {
             return Err(TemplateError::NotATemplate { path });
         }
@@ -83,20 +96,22 @@ impl Template {
         let expected_crc = word(20);
         let payload = &bytes[HEADER_LEN..];
         if (payload.len() as u64) < len {
-            return Err(TemplateError::Truncated { path, expected: HEADER_LEN as u64 + len, got: bytes.len() as u64 });
+            let expected = (HEADER_LEN as u64).saturating_add(len);
+            return Err(TemplateError::Truncated { path, expected, got: bytes.len() as u64 });
         }
         let payload = &payload[..len as usize];
         let found = crc32fast::hash(payload);
         if found != expected_crc {
             return Err(TemplateError::Checksum { path, found, expected: expected_crc });
         }
-        let template: Template = postcard::from_bytes(payload)
+        // Decoded first, checked after: postcard would reduce the checks' own
+        // messages to "Serde Deserialization Error".
+        let data: TemplateData = postcard::from_bytes(payload)
             .map_err(|e| TemplateError::Decode { path: path.clone(), reason: e.to_string() })?;
-        template
-            .geometry
-            .validate(&path)
-            .map_err(|e| TemplateError::Invalid { name: path.clone(), reason: e.to_string() })?;
-        Ok(template)
+        let invalid = |reason: String| TemplateError::Invalid { name: path.clone(), reason };
+        let descriptor = OneWayDescriptor::try_from(data.descriptor).map_err(|e| invalid(e.to_string()))?;
+        data.geometry.validate(&path).map_err(|e| invalid(e.to_string()))?;
+        Ok(Template { name: data.name, geometry: data.geometry, descriptor })
     }
 
     pub fn read(path: &Path) -> Result<Self, TemplateError> {
