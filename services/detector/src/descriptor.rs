@@ -26,8 +26,8 @@
 //! });
 //! let params = DescriptorParams::default();
 //! let scale = params.scale_for_slot_pitch(12.7); // 1 image pixel per mm
-//! let slot = TrainingFeature { centre: nalgebra::Point2::new(32.0, 32.0), class: Class::Power, scale };
-//! let flat = TrainingFeature { centre: nalgebra::Point2::new(10.0, 10.0), class: Class::Background, scale };
+//! let slot = TrainingFeature::new(nalgebra::Point2::new(32.0, 32.0), Class::Power, scale);
+//! let flat = TrainingFeature::new(nalgebra::Point2::new(10.0, 10.0), Class::Background, scale);
 //! let descriptor = train(&grey, &[slot, flat], &params).unwrap();
 //! assert_eq!(descriptor.classify(&grey, slot.centre, scale).class, Class::Power);
 //! ```
@@ -207,6 +207,21 @@ pub struct TrainingFeature {
     /// convention: for holes, [`DescriptorParams::scale_for_slot_pitch`] of the
     /// slot pitch measured in the training image, e.g. from its labels).
     pub scale: f64,
+    /// How the outlet lies in the training image at this feature: the image
+    /// directions of the outlet frame's x and y (columns), scale removed (unit
+    /// determinant). Samples are taken through it, so that they show the outlet
+    /// as if seen head-on and upright, and the poses then span the views to come
+    /// from there: a photograph taken 60 degrees off-axis and ground up trains as
+    /// well as a frontal one. The identity where it is not known (background).
+    #[serde(default = "Matrix2::identity")]
+    pub view: Matrix2<f64>,
+}
+
+impl TrainingFeature {
+    /// A feature seen as it is in the image (`view` the identity).
+    pub fn new(centre: Point2<f64>, class: Class, scale: f64) -> Self {
+        Self { centre, class, scale, view: Matrix2::identity() }
+    }
 }
 
 /// What went wrong in training.
@@ -485,7 +500,7 @@ fn pose_sample(
             };
             (p, Vector2::new(rng.range(-dp, dp), rng.range(-dp, dp)))
         };
-        let to_image = perturbed.inverse() * feature.scale;
+        let to_image = feature.view * perturbed.inverse() * feature.scale;
         let offsets = crop_offsets(params.crop_size);
         let mut k = 0;
         for y in offsets.clone() {
@@ -641,7 +656,7 @@ pub fn background_features(
         kept.push(c.centre);
         for scale in params.candidate_scales(c.size) {
             if features.len() < max {
-                features.push(TrainingFeature { centre: c.centre, class: Class::Background, scale });
+                features.push(TrainingFeature::new(c.centre, Class::Background, scale));
             }
         }
     }

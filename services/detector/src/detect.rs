@@ -34,6 +34,10 @@ pub struct DetectorParams {
     /// sample is within this distance of their nearest background sample taken
     /// as holes (PCA distance; 0 = no second look).
     pub second_look_margin: f32,
+    /// For outlets whose power holes map onto themselves under a half turn: how
+    /// much darker (relative) the found ground holes must be than the places a
+    /// half-turned outlet would put them.
+    pub ground_contrast: f64,
 }
 
 impl Default for DetectorParams {
@@ -48,6 +52,7 @@ impl Default for DetectorParams {
             max_plane_px: 1.2,
             max_plane_mm: 0.8,
             second_look_margin: 0.25,
+            ground_contrast: 0.05,
         }
     }
 }
@@ -292,8 +297,79 @@ impl Detector {
                 pixel.map(|pixel| DetectedHole { kind: hole.kind, pixel, refined: r.is_some() })
             })
             .collect::<Option<Vec<_>>>()?;
+        if !self.ground_holes_are_where_they_should_be(grey, lens, &h) {
+            return None;
+        }
         Some(Detection { holes, score, homography: h })
     }
+
+    /// An outlet whose power holes map onto themselves under a half turn (every
+    /// US duplex) matches its own half-turned self on the power holes alone: the
+    /// ground holes then land on the plate, where nothing is (a false alarm that
+    /// sends the arm beside the holes). The ground holes decide: where this
+    /// detection puts them must be darker than where the half-turned one would.
+    fn ground_holes_are_where_they_should_be(&self, grey: &GrayImage, lens: &Lens, h: &Matrix3<f64>) -> bool {
+        let holes = &self.template.geometry.holes;
+        let power: Vec<Point2<f64>> =
+            holes.iter().filter(|t| t.kind == HoleKind::Power).map(|t| t.position()).collect();
+        let ground: Vec<Point2<f64>> =
+            holes.iter().filter(|t| t.kind == HoleKind::Ground).map(|t| t.position()).collect();
+        if power.is_empty() || ground.is_empty() {
+            return true;
+        }
+        let c = centroid(&power);
+        let turn = |p: &Point2<f64>| Point2::from(2.0 * c.coords - p.coords);
+        let symmetric = power.iter().all(|p| power.iter().any(|q| (turn(p) - q).norm() < 1.0));
+        let turned: Vec<Point2<f64>> = ground.iter().map(turn).collect();
+        // Where the turned grounds fall on holes of the template, nothing tells them apart.
+        let on_holes = turned.iter().any(|g| holes.iter().any(|t| (t.position() - g).norm() < 2.0));
+        if !symmetric || on_holes {
+            return true;
+        }
+        let Some(jacobian) = local_jacobian(h, lens, &c) else { return false };
+        // Half the ground hole's width (4.8 mm) in pixels.
+        let radius = (2.4 * jacobian.singular_values().min()).max(1.5);
+        let darkness = |points: &[Point2<f64>]| -> Option<f64> {
+            let mut sum = 0.0;
+            for t in points {
+                sum += dark_quartile(grey, lens.distort(apply(h, t)?), radius)?;
+            }
+            Some(sum / points.len() as f64)
+        };
+        match (darkness(&ground), darkness(&turned)) {
+            (Some(here), Some(there)) => {
+                let keep = here + self.params.ground_contrast * (there + 1.0) < there;
+                tracing::debug!(here, there, keep, "ground holes against their half-turned places");
+                keep
+            }
+            // A half-turned ground outside the image says nothing against this one.
+            (Some(_), None) => true,
+            _ => false,
+        }
+    }
+}
+
+/// The mean of the darkest quarter of the grey values within `radius` pixels of
+/// `centre`; `None` when the disc leaves the image.
+fn dark_quartile(grey: &GrayImage, centre: Point2<f64>, radius: f64) -> Option<f64> {
+    let (w, h) = grey.dimensions();
+    let r = radius.ceil() as i64;
+    let (cx, cy) = (centre.x.round() as i64, centre.y.round() as i64);
+    if cx - r < 0 || cy - r < 0 || cx + r >= w as i64 || cy + r >= h as i64 {
+        return None;
+    }
+    let mut values: Vec<u8> = Vec::with_capacity(((2 * r + 1) * (2 * r + 1)) as usize);
+    for y in cy - r..=cy + r {
+        for x in cx - r..=cx + r {
+            let (dx, dy) = (x as f64 - centre.x, y as f64 - centre.y);
+            if dx * dx + dy * dy <= radius * radius {
+                values.push(grey.get_pixel(x as u32, y as u32)[0]);
+            }
+        }
+    }
+    values.sort_unstable();
+    let quarter = (values.len() / 4).max(1);
+    Some(values[..quarter].iter().map(|&v| v as f64).sum::<f64>() / quarter as f64)
 }
 
 /// Distortion on the way in and out of the geometric stages.

@@ -6,8 +6,9 @@
 use crate::descriptor::{DescriptorError, DescriptorParams, OneWayDescriptor, TrainingFeature, background_features};
 use crate::{Candidate, Class};
 use image::GrayImage;
-use nalgebra::Point2;
+use nalgebra::{Matrix2, Matrix3, Point2};
 use outlet_protocol::OutletGeometry;
+use outlet_protocol::math::{apply_homography, fit_homography};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -193,9 +194,19 @@ pub fn train_template(
         let pitch_px =
             slot_pitch_px(&geometry, &view.holes).ok_or_else(|| invalid("the labels are degenerate".into()))?;
         let scale = params.scale_for_slot_pitch(pitch_px);
+        let outlet_to_image = outlet_homography(&geometry, &view.holes);
         for (h, p) in geometry.holes.iter().zip(&view.holes) {
-            let feature = TrainingFeature { centre: shift(*p, k), class: Class::from(h.kind), scale };
+            let feature = TrainingFeature::new(shift(*p, k), Class::from(h.kind), scale);
             features.push(feature);
+            // An oblique view trains twice: as it is, for views like it, and
+            // head-on, for the views between head-on and it (the poses' stretches
+            // reach about 45 degrees either way).
+            if let Some(view) = outlet_to_image.as_ref().and_then(|m| head_on_view(m, &h.position())) {
+                let stretch = view.singular_values();
+                if stretch.max() > HEAD_ON_ALSO_ABOVE * stretch.min() {
+                    features.push(TrainingFeature { view, ..feature });
+                }
+            }
             // The candidate that the candidate stage found on this hole.
             let on_hole = view
                 .candidates
@@ -226,6 +237,37 @@ pub fn train_template(
         descriptor.calibrate_candidate_extent(&pairs);
     }
     Ok(Template { name: name.to_string(), geometry, descriptor })
+}
+
+/// The foreshortening (ratio of the view's stretches) beyond which a hole is also
+/// trained head-on: 1.25 is 37 degrees off-axis, which the poses' own stretches
+/// (0.8..1.2) nearly cover.
+const HEAD_ON_ALSO_ABOVE: f64 = 1.25;
+
+/// The homography from the outlet frame (mm) to the labelled pixels, where the
+/// labels fit one (lens distortion left in: it is nearly affine over an outlet).
+fn outlet_homography(geometry: &OutletGeometry, pixels: &[Point2<f64>]) -> Option<Matrix3<f64>> {
+    let pairs: Vec<(Point2<f64>, Point2<f64>)> =
+        geometry.holes.iter().zip(pixels).map(|(h, p)| (h.position(), *p)).collect();
+    if pairs.len() < 4 {
+        return None;
+    }
+    let h = fit_homography(&pairs)?;
+    // Labels that no plane explains (a typo, a wrong order) get no view at all.
+    let pitch = slot_pitch_px(geometry, pixels)?;
+    let worst = pairs.iter().filter_map(|(t, p)| apply_homography(&h, t).map(|q| (q - p).norm())).fold(0.0, f64::max);
+    (worst < 0.25 * pitch).then_some(h)
+}
+
+/// The outlet's image directions at an outlet point, scale removed: the local
+/// Jacobian of `h` over the square root of its determinant. `None` for a
+/// mirrored or degenerate view.
+fn head_on_view(h: &Matrix3<f64>, t: &Point2<f64>) -> Option<Matrix2<f64>> {
+    let at = |dx: f64, dy: f64| apply_homography(h, &Point2::new(t.x + dx, t.y + dy));
+    let (xp, xm, yp, ym) = (at(0.5, 0.0)?, at(-0.5, 0.0)?, at(0.0, 0.5)?, at(0.0, -0.5)?);
+    let j = Matrix2::new(xp.x - xm.x, yp.x - ym.x, xp.y - xm.y, yp.y - ym.y);
+    let det = j.determinant();
+    (det.is_finite() && det > 0.0).then(|| j / det.sqrt())
 }
 
 /// The image length of 12.7 mm near the holes: the mean ratio of pixel to mm

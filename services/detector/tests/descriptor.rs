@@ -185,7 +185,7 @@ fn rendered_training_set(params: &DescriptorParams) -> (GrayImage, Vec<TrainingF
     let mut features: Vec<TrainingFeature> = train
         .holes
         .iter()
-        .map(|&(centre, class, pitch)| TrainingFeature { centre, class, scale: params.scale_for_slot_pitch(pitch) })
+        .map(|&(centre, class, pitch)| TrainingFeature::new(centre, class, params.scale_for_slot_pitch(pitch)))
         .collect();
     // Background features come in the default convention; follow the params'.
     let convert = DescriptorParams::default().slot_pitch_patch_px / params.slot_pitch_patch_px;
@@ -443,7 +443,7 @@ fn descriptor_trained_on_the_willow_photograph_recognises_its_own_holes() {
         .chunks_exact(3)
         .flat_map(|r| {
             let scale = params.scale_for_slot_pitch((r[0].1 - r[1].1).norm());
-            r.iter().map(move |&(class, centre)| TrainingFeature { centre, class, scale })
+            r.iter().map(move |&(class, centre)| TrainingFeature::new(centre, class, scale))
         })
         .collect();
     // Background: the photograph's candidates clear of the outlet's receptacles.
