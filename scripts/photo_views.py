@@ -53,7 +53,7 @@ def main():
     grid = np.hstack([grid, np.ones((len(grid), 1))])
     (out / "camera.yaml").write_text(
         f"image_width: {w2}\nimage_height: {h2}\ncamera_name: willow_view\n"
-        f"camera_matrix:\n  rows: 3\n  cols: 3\n  data: [{K2[0,0]!r}, 0, {K2[0,2]!r}, 0, {K2[1,1]!r}, {K2[1,2]!r}, 0, 0, 1]\n"
+        f"camera_matrix:\n  rows: 3\n  cols: 3\n  data: [{float(K2[0,0])!r}, 0, {float(K2[0,2])!r}, 0, {float(K2[1,1])!r}, {float(K2[1,2])!r}, 0, 0, 1]\n"
         f"distortion_model: plumb_bob\ndistortion_coefficients:\n  rows: 1\n  cols: 5\n  data: [{', '.join(repr(float(v)) for v in dist)}]\n")
 
     rng = np.random.default_rng(seed)
