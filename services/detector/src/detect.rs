@@ -224,7 +224,15 @@ impl Detector {
         let detection = found.and_then(|m| {
             let guesses: Vec<Option<Point2<f64>>> =
                 m.assignment.iter().map(|a| a.and_then(|k| holes.get(k).map(|(c, _)| c.centre))).collect();
-            self.refine(grey, lens, &m.transform, &guesses, m.score)
+            self.refine(grey, lens, &m.transform, &guesses, m.score).or_else(|| {
+                // Hashing leaves a duplex's two readings of the same power holes
+                // to the image: the half-turned one, if its ground holes say so.
+                let (c, image) = self.table.half_turn()?;
+                let turn = Matrix3::new(-1.0, 0.0, 2.0 * c.x, 0.0, -1.0, 2.0 * c.y, 0.0, 0.0, 1.0);
+                let turned: Vec<Option<Point2<f64>>> =
+                    image.iter().map(|k| k.and_then(|k| guesses.get(k).copied().flatten())).collect();
+                self.refine(grey, lens, &(m.transform * turn), &turned, m.score)
+            })
         });
         times.refine += ms_since(t);
         detection

@@ -393,6 +393,28 @@ impl HashTable {
         &self.points
     }
 
+    /// For a template whose power holes map onto themselves under a half turn
+    /// about their centroid (every US duplex), that centroid and, per hole, the
+    /// hole of its class the half turn takes it to (`None` for the ground holes,
+    /// which land on the plate). `None` for any other template.
+    pub fn half_turn(&self) -> Option<(Point2<f64>, Vec<Option<usize>>)> {
+        let power: Vec<usize> = (0..self.points.len()).filter(|&i| self.classes[i] == Class::Power).collect();
+        if power.is_empty() || power.len() == self.points.len() {
+            return None;
+        }
+        let c = power.iter().fold(Vector2::zeros(), |s, &i| s + self.points[i].coords) / power.len() as f64;
+        let turned = |i: usize| Point2::from(2.0 * c - self.points[i].coords);
+        let image: Vec<Option<usize>> = (0..self.points.len())
+            .map(|i| {
+                (0..self.points.len())
+                    .find(|&k| self.classes[k] == self.classes[i] && (self.points[k] - turned(i)).norm() < 1.0)
+            })
+            .collect();
+        let symmetric = power.iter().all(|&i| image[i].is_some());
+        let grounds_apart = image.iter().enumerate().all(|(i, k)| self.classes[i] == Class::Power || k.is_none());
+        (symmetric && grounds_apart).then_some((Point2::from(c), image))
+    }
+
     /// Template hole classes as given.
     pub fn classes(&self) -> &[Class] {
         &self.classes
@@ -580,6 +602,8 @@ struct Search<'a> {
     accepted: Vec<Accepted>,
     accepted_assignments: Vec<u32>,
     hypotheses: usize,
+    /// The template's half turn (see [`HashTable::half_turn`]).
+    half_turn: Option<(Point2<f64>, Vec<Option<usize>>)>,
     /// Hypotheses implicitly tested: online bases times model bases of their
     /// class signature.
     tests: usize,
@@ -939,6 +963,23 @@ impl<'a> Search<'a> {
         &self.accepted_assignments[s..s + self.holes]
     }
 
+    /// True when `other` matches the candidates of `mine` to the half-turned
+    /// holes: each power hole's candidate is the half-turned hole's in `other`.
+    fn is_half_turn_twin(&self, mine: &[u32], other: &[u32]) -> bool {
+        let Some((_, image)) = &self.half_turn else { return false };
+        let mut agree = 0;
+        for (j, &candidate) in mine.iter().enumerate() {
+            if candidate == NONE || self.table.classes[j] != Class::Power {
+                continue;
+            }
+            match image[j] {
+                Some(k) if other[k] == candidate => agree += 1,
+                _ => return false,
+            }
+        }
+        agree >= 3
+    }
+
     /// The best significant hypothesis, if no other verified interpretation (a
     /// coincidence counts too) rivals it.
     fn decide(&self) -> Option<usize> {
@@ -961,6 +1002,11 @@ impl<'a> Search<'a> {
                 continue; // the same pose, matched a little differently
             }
             let relabels_mine = other.iter().all(|&i| i == NONE || mine.contains(&i));
+            if relabels_mine && self.is_half_turn_twin(mine, other) {
+                // The same power holes read the other way up: the image, not the
+                // points, tells them apart (the detector looks at the ground holes).
+                continue;
+            }
             let rival = self.accepted[k].score;
             let margin = if relabels_mine { 1 } else { self.params.rival_margin.max(1) };
             if rival + margin > score {
@@ -1191,6 +1237,7 @@ pub fn find_outlet(
         accepted: Vec::new(),
         accepted_assignments: Vec::new(),
         hypotheses: 0,
+        half_turn: table.half_turn(),
         tests: 0,
     };
     if search.min_score > holes {

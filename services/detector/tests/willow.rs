@@ -153,4 +153,7 @@ fn a_ground_down_outlet_is_not_taken_for_a_half_turned_ground_up_one() {
     }
     assert!(turned_unchecked > 0, "the scenes do not show the half-turn match: the test tests nothing");
     assert_eq!(turned, 0, "half-turned outlets reported ({turned_unchecked} without the ground check); {right} right");
+    // Hashing leaves both readings to the ground holes, which find the right one.
+    println!("of 24: {right} right, {turned_unchecked} half-turned without the ground check");
+    assert!(right >= 3, "only {right} of 24 found the right way up");
 }
