@@ -361,11 +361,13 @@ impl Detector {
 /// `centre`; `None` when the disc leaves the image.
 fn dark_quartile(grey: &GrayImage, centre: Point2<f64>, radius: f64) -> Option<f64> {
     let (w, h) = grey.dimensions();
-    let r = radius.ceil() as i64;
-    let (cx, cy) = (centre.x.round() as i64, centre.y.round() as i64);
-    if cx - r < 0 || cy - r < 0 || cx + r >= w as i64 || cy + r >= h as i64 {
+    let r = radius.ceil();
+    // In floating point first: a centre far outside (or not finite) fails here.
+    let inside = |c: f64, size: u32| c.round() - r >= 0.0 && c.round() + r < size as f64;
+    if !(radius.is_finite() && inside(centre.x, w) && inside(centre.y, h)) {
         return None;
     }
+    let (r, cx, cy) = (r as i64, centre.x.round() as i64, centre.y.round() as i64);
     let mut values: Vec<u8> = Vec::with_capacity(((2 * r + 1) * (2 * r + 1)) as usize);
     for y in cy - r..=cy + r {
         for x in cx - r..=cx + r {
