@@ -424,3 +424,24 @@ fn local_jacobian(h: &Matrix3<f64>, lens: &Lens, t: &Point2<f64>) -> Option<Matr
 }
 
 pub use outlet_protocol::math::fit_homography;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_dark_quartile_sees_a_hole_and_refuses_discs_it_cannot_read() {
+        // A grey face at 200 with a dark hole of radius 3 at (20, 20).
+        let image = GrayImage::from_fn(40, 40, |x, y| {
+            let (dx, dy) = (x as f64 - 20.0, y as f64 - 20.0);
+            image::Luma([if dx * dx + dy * dy <= 9.0 { 20 } else { 200 }])
+        });
+        let on_hole = dark_quartile(&image, Point2::new(20.0, 20.0), 5.0).expect("inside");
+        let on_face = dark_quartile(&image, Point2::new(8.0, 30.0), 5.0).expect("inside");
+        assert_eq!((on_hole, on_face), (20.0, 200.0));
+        for centre in [(2.0, 20.0), (20.0, 38.0), (f64::NAN, 20.0), (1e300, 20.0), (-1e300, f64::INFINITY)] {
+            assert_eq!(dark_quartile(&image, Point2::new(centre.0, centre.1), 5.0), None, "{centre:?}");
+        }
+        assert_eq!(dark_quartile(&image, Point2::new(20.0, 20.0), f64::INFINITY), None);
+    }
+}
