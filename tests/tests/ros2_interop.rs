@@ -14,8 +14,10 @@
 //! such a configuration. The test has a DDS domain id of its own (from the
 //! process id, in 1..=200) and an iceoryx2 domain of its own.
 //!
-//! Python 3 with `cyclonedds`, `cv2` and `numpy` is required (`.ci/run` installs
-//! them): without them this test fails, it does not skip.
+//! Python 3 with `cyclonedds`, `cv2` and `numpy` is required: the interpreter
+//! named by `OUTLET_PYTHON`, else the project's `.venv/bin/python`, which
+//! `scripts/test.sh` (the README's test command) creates. Without it this test
+//! fails, it does not skip.
 
 use outlet_tests::{Sidecar, domain, outlet_exe, wait_for};
 use std::path::{Path, PathBuf};
@@ -33,16 +35,26 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("the workspace").to_path_buf()
 }
 
+/// The Python interpreter of the test peers: `OUTLET_PYTHON`, else the project's venv.
+fn python() -> PathBuf {
+    std::env::var_os("OUTLET_PYTHON").map_or_else(|| repo().join(".venv/bin/python"), PathBuf::from)
+}
+
 /// Python 3 with the packages the script needs, or why not.
 fn check_python() -> Result<(), String> {
-    let out = Command::new("python3")
-        .args(["-c", "import cyclonedds, cv2, numpy"])
-        .output()
-        .map_err(|e| format!("python3 is required for the ROS 2 interop test and could not be run: {e}"))?;
+    let python = python();
+    let out = Command::new(&python).args(["-c", "import cyclonedds, cv2, numpy"]).output().map_err(|e| {
+        format!(
+            "{} is required for the ROS 2 interop test and could not be run ({e}); scripts/test.sh creates it, \
+             or set OUTLET_PYTHON",
+            python.display()
+        )
+    })?;
     if !out.status.success() {
         return Err(format!(
-            "python3 with cyclonedds, cv2 and numpy is required for the ROS 2 interop test (.ci/run installs \
-             them: python3 -m pip install cyclonedds==11.0.1): {}",
+            "{} lacks cyclonedds, cv2 or numpy, which the ROS 2 interop test needs (scripts/test.sh installs \
+             tests/requirements.txt into .venv): {}",
+            python.display(),
             String::from_utf8_lossy(&out.stderr).trim()
         ));
     }
@@ -156,7 +168,7 @@ frame_id = "camera_optical_frame"
     let cyclone_config = repo().join("tests/dds/cyclonedds-loopback.xml");
     let stdout = std::fs::File::create(sidecar.logs.join("ros2_interop.out"))?;
     let stderr = std::fs::File::create(sidecar.logs.join("ros2_interop.err"))?;
-    let mut script = Command::new("python3")
+    let mut script = Command::new(python())
         .arg(repo().join("tests/ros2_interop.py"))
         .arg(&scenes)
         .args(["--domain", &dds_domain.to_string(), "--timeout", "60"])

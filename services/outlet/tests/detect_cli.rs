@@ -2,7 +2,7 @@
 //! on rendered images.
 
 use serde_json::Value;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn outlet(args: &[&str]) -> std::process::Output {
@@ -214,11 +214,15 @@ fn eval_writes_table_plot_and_pose_inputs_for_opencv() {
     assert!(table.contains("| plane |") && table.contains("| mono |"));
     let plot = image::open(dir.path().join("rates.png")).expect("plot");
     assert!(plot.width() > 400);
-    // OpenCV's IPPE and SQPnP on the same pixels (CI installs opencv-python-headless).
+    // OpenCV's IPPE and SQPnP on the same pixels, in the interpreter named by
+    // OUTLET_PYTHON or else the project's .venv (scripts/test.sh creates it).
     let inputs = dir.path().join("pose_inputs.jsonl");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/opencv_pnp.py");
-    let out = Command::new("python3").arg(&script).arg(&inputs).output().expect("python3");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let python = std::env::var_os("OUTLET_PYTHON").map_or_else(|| repo.join(".venv/bin/python"), PathBuf::from);
+    let out = Command::new(&python).arg(repo.join("tests/opencv_pnp.py")).arg(&inputs).output().unwrap_or_else(|e| {
+        panic!("{} (OpenCV for the pose comparison) could not be run: {e}; scripts/test.sh creates it", python.display())
+    });
+    assert!(out.status.success(), "{}: {}", python.display(), String::from_utf8_lossy(&out.stderr));
     let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
     let solved = summary["ippe"]["solved"].as_u64().expect("ippe ran");
     assert!(solved >= 1 && summary["ippe"]["rms_mm"].as_f64().is_some_and(|v| v.is_finite()));
