@@ -6,7 +6,7 @@ use crate::camera::CameraModel;
 use iceoryx2::prelude::ZeroCopySend;
 
 /// Version of the types in this module; bumped on any change of their layout.
-pub const SCHEMA_VERSION: u32 = 1;
+pub const SCHEMA_VERSION: u32 = 2;
 
 /// Service names, one place for every process.
 pub mod service {
@@ -202,6 +202,14 @@ pub struct HoleMsg {
     pub refined: u32,
     /// Pixel in the image as captured.
     pub pixel: [f64; 2],
+    /// Evidence in 0..1 that the hole was seen where the outlet's geometry puts it:
+    /// its outline fitted there, with the predicted shape, contrast and a small
+    /// residual (the detector's verification). Holes of a reported outlet are all
+    /// verified; the score says how clearly.
+    pub score: f64,
+    /// Standard deviation of `pixel` per axis (pixels), from the sub-pixel fit's own
+    /// residuals (with a floor).
+    pub sigma_px: f64,
 }
 
 /// The outlet found in a frame, or none (`hole_count` 0).

@@ -4,7 +4,7 @@
 
 use crate::candidates::{CandidateParams, find_candidates};
 use crate::hashing::{HashParams, HashTable, find_outlet};
-use crate::refine::{HoleShape, RefineParams, refine_hole};
+use crate::refine::{HoleShape, RefineParams, Refined, refine_hole};
 use crate::template::Template;
 use crate::{Candidate, Class, grey_of};
 use image::{GrayImage, RgbImage};
@@ -66,6 +66,12 @@ pub struct DetectedHole {
     /// Whether the sub-pixel fit found this hole (otherwise its place is predicted
     /// from the other holes).
     pub refined: bool,
+    /// Evidence in 0..1 that the hole was seen where the outlet's homography puts
+    /// it, with the predicted outline (the outlet's verification in `detect.rs`); 0 when not seen.
+    pub score: f64,
+    /// Standard deviation of `pixel` per axis (pixels), from the outline fit's
+    /// residuals ([`crate::refine::Refined::sigma_px`]).
+    pub sigma_px: f64,
 }
 
 /// A found outlet.
@@ -249,7 +255,7 @@ impl Detector {
         score: usize,
     ) -> Option<Detection> {
         let model: Vec<Point2<f64>> = self.template.geometry.holes.iter().map(|h| h.position()).collect();
-        let mut refined: Vec<Option<Point2<f64>>> = Vec::with_capacity(model.len());
+        let mut fits: Vec<Option<Refined>> = Vec::with_capacity(model.len());
         for (i, t) in model.iter().enumerate() {
             let predicted = lens.distort(apply(homography, t)?);
             // The candidate's own centre where it is close to the prediction.
@@ -259,8 +265,9 @@ impl Detector {
             };
             let jacobian = local_jacobian(homography, lens, t)?;
             let fit = refine_hole(grey, guess, &jacobian, self.outlines[i], &self.params.refine);
-            refined.push(fit.map(|r| r.centre));
+            fits.push(fit);
         }
+        let mut refined: Vec<Option<Point2<f64>>> = fits.iter().map(|f| f.map(|r| r.centre)).collect();
         // The refined holes must lie where one plane puts them. Holes that do not
         // (a fit caught by a glint or a dark spot) are dropped one by one, worst
         // first; the outlet stands only if enough holes remain.
@@ -296,13 +303,18 @@ impl Detector {
         let holes = model
             .iter()
             .zip(&refined)
+            .zip(&fits)
             .zip(&self.template.geometry.holes)
-            .map(|((t, r), hole)| {
+            .map(|(((t, r), fit), hole)| {
                 let pixel = match r {
                     Some(p) => Some(*p),
                     None => apply(&h, t).map(|q| lens.distort(q)),
                 };
-                pixel.map(|pixel| DetectedHole { kind: hole.kind, pixel, refined: r.is_some() })
+                let (score, sigma_px) = match (r, fit) {
+                    (Some(_), Some(f)) => (f.explained, f.sigma_px),
+                    _ => (0.0, self.params.refine.max_shift_px),
+                };
+                pixel.map(|pixel| DetectedHole { kind: hole.kind, pixel, refined: r.is_some(), score, sigma_px })
             })
             .collect::<Option<Vec<_>>>()?;
         if !self.ground_holes_are_where_they_should_be(grey, lens, &h) {

@@ -76,11 +76,14 @@ pub struct RefineParams {
     /// as a fraction of the face's grey level: a predicted hole on a blank plate
     /// fits noise, not an opening.
     pub min_relative_contrast: f64,
+    /// The centre's standard deviation (pixels per axis) is never taken below
+    /// this: the outline model itself is no better than that on real holes.
+    pub min_sigma_px: f64,
 }
 
 impl Default for RefineParams {
     fn default() -> Self {
-        Self { margin_mm: 1.8, iterations: 10, max_shift_px: 3.0, min_relative_contrast: 0.12 }
+        Self { margin_mm: 1.8, iterations: 10, max_shift_px: 3.0, min_relative_contrast: 0.12, min_sigma_px: 0.05 }
     }
 }
 
@@ -92,6 +95,16 @@ pub struct Refined {
     pub rms: f64,
     /// Contrast between the face and the opening (grey levels): small means unsure.
     pub contrast: f64,
+    /// Standard deviation of `centre` per axis (pixels): the Gauss-Newton
+    /// covariance of the offset, sigma^2 (J^T W J)^-1 with sigma^2 the weighted
+    /// residual variance, as the RMS of its two axes, at least
+    /// [`RefineParams::min_sigma_px`].
+    pub sigma_px: f64,
+    /// Share of the grey-level variance in the window that the outline model
+    /// explains (R^2, 0..1): near 1 for a clear opening of the predicted shape.
+    pub explained: f64,
+    /// Pixels in the fit.
+    pub pixels: usize,
 }
 
 /// Fits one hole's outline around `guess`. `mm_to_px` maps outlet-plane mm offsets
@@ -224,6 +237,32 @@ fn fit(
     coverage(t, &mut cov);
     let (p, r) = solve(&cov, &weights)?;
     let rms = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
+    // The offset's covariance from the normal equations at the solution, scaled
+    // by the residual variance (6 parameters: two offsets, four linear).
+    coverage(t + Vector2::new(step, 0.0), &mut cov_dx);
+    coverage(t + Vector2::new(0.0, step), &mut cov_dy);
+    let model = |(m, q): &(f64, Vector2<f64>)| p[0] * (1.0 - m) + m * (p[1] + p[2] * q.x + p[3] * q.y);
+    let (mut jtj, mut wrr, mut wsum) = (Matrix2::zeros(), 0.0, 0.0);
+    for i in 0..pixels.len() {
+        let base = model(&cov[i]);
+        let j = Vector2::new((model(&cov_dx[i]) - base) / step, (model(&cov_dy[i]) - base) / step);
+        jtj += j * j.transpose() * weights[i];
+        wrr += weights[i] * r[i] * r[i];
+        wsum += weights[i];
+    }
+    let dof = (pixels.len() as f64 - 6.0).max(1.0);
+    // Weights below 1 count as fewer pixels: the variance per unit weight.
+    let variance = wrr / dof * (pixels.len() as f64 / wsum.max(1e-9));
+    let covariance = jtj.try_inverse().map(|inv| inv * variance);
+    let sigma_px = covariance
+        .map(|c| ((c[(0, 0)] + c[(1, 1)]) / 2.0).max(0.0).sqrt())
+        .filter(|s| s.is_finite())
+        .unwrap_or(params.max_shift_px)
+        .max(params.min_sigma_px);
+    let mean = pixels.iter().map(|(_, v)| v).sum::<f64>() / pixels.len() as f64;
+    let total = pixels.iter().map(|(_, v)| (v - mean) * (v - mean)).sum::<f64>();
+    let residual = r.iter().map(|v| v * v).sum::<f64>();
+    let explained = if total > 0.0 { (1.0 - residual / total).clamp(0.0, 1.0) } else { 0.0 };
     // Mean level inside the outline against the face's.
     let contrast = p[0] - p[1];
     let relative = contrast / p[0].max(1.0);
@@ -231,5 +270,5 @@ fn fit(
     {
         return None;
     }
-    Some(Refined { centre: guess + t, rms, contrast })
+    Some(Refined { centre: guess + t, rms, contrast, sigma_px, explained, pixels: pixels.len() })
 }

@@ -219,9 +219,20 @@ fn run_one(job: &Job, detectors: &mut Detectors, annotate: Option<&Path>, severa
             });
             let covariance = pose.as_ref().map(|p| {
                 let c = p.covariances[i];
-                [[c[(0, 0)], c[(0, 1)], c[(0, 2)]], [c[(1, 0)], c[(1, 1)], c[(1, 2)]], [c[(2, 0)], c[(2, 1)], c[(2, 2)]]]
+                [
+                    [c[(0, 0)], c[(0, 1)], c[(0, 2)]],
+                    [c[(1, 0)], c[(1, 1)], c[(1, 2)]],
+                    [c[(2, 0)], c[(2, 1)], c[(2, 2)]],
+                ]
             });
-            json!({"kind": h.kind.as_str(), "pixel": [h.pixel.x, h.pixel.y], "position_m": position, "covariance_m2": covariance})
+            json!({
+                "kind": h.kind.as_str(),
+                "pixel": [h.pixel.x, h.pixel.y],
+                "position_m": position,
+                "covariance_m2": covariance,
+                "score": h.score,
+                "sigma_px": h.sigma_px,
+            })
         })
         .collect();
     let pose_json = pose.as_ref().map(|p| {

@@ -113,6 +113,8 @@ fn detection_msg(
                 },
                 refined: h.refined as u32,
                 pixel: [h.pixel.x, h.pixel.y],
+                score: h.score,
+                sigma_px: h.sigma_px,
             };
         }
     }
