@@ -1,0 +1,61 @@
+//! The refinement's own standard deviation of a hole centre (`sigma_px`) against
+//! the truth on rendered scenes: blurred, small, oblique and glossy holes alike.
+
+use nalgebra::{Matrix2, Point2, Point3};
+use outlet_detector::grey_of;
+use outlet_detector::refine::{HoleShape, RefineParams, refine_hole};
+use outlet_protocol::CameraModel;
+use outlet_sim::{render_frame, sample_scene};
+
+/// The outlet-plane mm to image px Jacobian at a hole, from the true pose.
+fn jacobian(scene: &outlet_sim::Scene, hole_mm: [f64; 2]) -> Matrix2<f64> {
+    let project = |x: f64, y: f64| {
+        scene.camera.project(&(scene.pose * Point3::new(x / 1000.0, y / 1000.0, 0.0))).expect("in front")
+    };
+    let c = project(hole_mm[0], hole_mm[1]);
+    let dx = project(hole_mm[0] + 0.5, hole_mm[1]) - c;
+    let dy = project(hole_mm[0], hole_mm[1] + 0.5) - c;
+    Matrix2::new(dx.x, dy.x, dx.y, dy.y) * 2.0
+}
+
+#[test]
+fn sigma_px_matches_the_actual_centre_error() {
+    let camera = CameraModel::default_vga();
+    let mut rng = outlet_sim::rng::SimRng::new(11);
+    let params = RefineParams::default();
+    // Squared error over sigma, per axis, per hole.
+    let mut z2 = Vec::new();
+    let mut per_scenario = Vec::new();
+    for scenario in
+        ["fw_2x1white", "orange2x1", "whitehall2x1", "cracked2x2", "fw_2x2orange", "white2x2", "specular2x2"]
+    {
+        let first = z2.len();
+        for index in 0..8 {
+            let scene = sample_scene(scenario, 31, index, &camera).expect("scene");
+            let frame = render_frame(&scene, "x");
+            let grey = grey_of(&frame.frame.image);
+            let geometry = scene.geometry().expect("outlet");
+            let outlines = HoleShape::us_outlines(&geometry);
+            for ((hole, truth), outline) in geometry.holes.iter().zip(&frame.truth.holes).zip(outlines) {
+                let j = jacobian(&scene, hole.position_mm);
+                let guess = Point2::new(truth.pixel[0] + rng.range(-1.0, 1.0), truth.pixel[1] + rng.range(-1.0, 1.0));
+                if let Some(r) = refine_hole(&grey, guess, &j, outline, &params) {
+                    assert!(r.sigma_px > 0.0 && r.sigma_px.is_finite());
+                    z2.push(((r.centre.x - truth.pixel[0]) / r.sigma_px).powi(2));
+                    z2.push(((r.centre.y - truth.pixel[1]) / r.sigma_px).powi(2));
+                }
+            }
+        }
+        let part = &z2[first..];
+        per_scenario.push((scenario, (part.iter().sum::<f64>() / part.len().max(1) as f64).sqrt()));
+    }
+    let rms = (z2.iter().sum::<f64>() / z2.len() as f64).sqrt();
+    let mut sorted = z2.iter().map(|v| v.sqrt()).collect::<Vec<_>>();
+    sorted.sort_by(f64::total_cmp);
+    let p95 = sorted[sorted.len() * 95 / 100];
+    println!("{} axes: RMS of error / sigma_px {rms:.2}, p95 |error| / sigma_px {p95:.2}", z2.len());
+    for (scenario, r) in &per_scenario {
+        println!("  {scenario}: RMS {r:.2}");
+    }
+    assert!((0.6..=1.6).contains(&rms), "RMS of error / sigma_px {rms:.2}");
+}
