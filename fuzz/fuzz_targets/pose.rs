@@ -52,7 +52,7 @@ fuzz_target!(|data: &[u8]| {
             pixels.push(Point2::new(number(&mut u, 320.0, 400.0)?, number(&mut u, 240.0, 300.0)?));
         }
         let pixel_sigma = number(&mut u, 0.3, 0.3)?;
-        let obs = Observations { model_mm: &model, pixels: &pixels, camera: &camera, pixel_sigma };
+        let obs = Observations { model_mm: &model, pixels: &pixels, camera: &camera, pixel_sigma, pixel_sigmas: None };
         let normal = Vector3::new(number(&mut u, 0.0, 1.0)?, number(&mut u, 0.0, 1.0)?, number(&mut u, 1.0, 1.0)?);
         if let Ok(p) = solve_normal(&obs, &normal, number(&mut u, 0.01, 0.01)?) {
             assert!(finite(&p), "{p:?}");

@@ -275,7 +275,8 @@ fn solve_pose(detection: &Detection, detector: &Detector, camera: &CameraModel, 
     let geometry = &detector.template().geometry;
     let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
     let pixels: Vec<Point2<f64>> = detection.holes.iter().map(|h| h.pixel).collect();
-    let obs = Observations { model_mm: &model, pixels: &pixels, camera, pixel_sigma: HOLE_PIXEL_SIGMA };
+    let obs =
+        Observations { model_mm: &model, pixels: &pixels, camera, pixel_sigma: HOLE_PIXEL_SIGMA, pixel_sigmas: None };
     let pose = match wall {
         Wall::Normal(n) => solve_normal(&obs, n, GIVEN_NORMAL_SIGMA_RAD)?,
         Wall::Points(path) => {

@@ -18,6 +18,9 @@
 mod closed_form;
 mod lm;
 mod mono;
+mod robust;
+
+pub use robust::OUTLIER_CHI2;
 
 pub use closed_form::closed_form_normal;
 
@@ -45,7 +48,7 @@ impl Mode {
 }
 
 /// Why no pose could be computed.
-#[derive(Debug, thiserror::Error, PartialEq)]
+#[derive(Debug, Clone, thiserror::Error, PartialEq)]
 pub enum PoseError {
     #[error("{got} holes given, {needed} needed for the {mode} pose")]
     TooFewHoles { got: usize, needed: usize, mode: &'static str },
@@ -65,6 +68,11 @@ pub enum PoseError {
     BadSigma(f64),
     #[error("no pose puts the outlet in front of the camera")]
     BehindCamera,
+    #[error(
+        "two poses explain the pixels almost equally (costs {best_cost:.1} and {other_cost:.1}): \
+         ambiguous, the outlet is too small or seen too squarely"
+    )]
+    Ambiguous { best_cost: f64, other_cost: f64 },
 }
 
 /// The holes as detected: model positions and image pixels.
@@ -75,8 +83,23 @@ pub struct Observations<'a> {
     /// The same holes in the image as captured (distorted pixels).
     pub pixels: &'a [Point2<f64>],
     pub camera: &'a CameraModel,
-    /// Standard deviation of a hole's pixel, each axis (pixels).
+    /// Standard deviation of a hole's pixel, each axis (pixels): the default for
+    /// holes without one of their own in `pixel_sigmas`.
     pub pixel_sigma: f64,
+    /// Each hole's own pixel standard deviation (pixels), as the detector's
+    /// sub-pixel fit measured it; an entry that is missing, not finite or not
+    /// positive falls back to `pixel_sigma`.
+    pub pixel_sigmas: Option<&'a [f64]>,
+}
+
+impl Observations<'_> {
+    /// The pixel standard deviation of hole `index` (pixels).
+    pub fn sigma_of(&self, index: usize) -> f64 {
+        self.pixel_sigmas
+            .and_then(|s| s.get(index).copied())
+            .filter(|s| s.is_finite() && *s > 0.0)
+            .unwrap_or(self.pixel_sigma)
+    }
 }
 
 /// The wall as stereo measured it: `normal · X = distance_m` in the camera frame,
@@ -114,8 +137,16 @@ pub struct OutletPose {
     pub holes_cam_m: Vec<Point3<f64>>,
     /// Covariance of each hole's position (m²).
     pub covariances: Vec<Matrix3<f64>>,
-    /// RMS reprojection error of the holes (pixels).
+    /// RMS reprojection error of the holes that weighed (pixels): all but
+    /// `outliers`.
     pub rms_px: f64,
+    /// Holes (model order) whose pixels the solution could not explain and did
+    /// not use; their positions and covariances come from the others through
+    /// the outlet's rigid geometry.
+    pub outliers: Vec<usize>,
+    /// The factor (at least 1) the covariances were scaled by: the kept holes'
+    /// cost per degree of freedom, where the pixels were noisier than assumed.
+    pub variance_factor: f64,
 }
 
 pub use outlet_protocol::math::tangent_basis;
@@ -128,6 +159,10 @@ pub(crate) struct Rays {
     pub covariance: Vec<Matrix2<f64>>,
     /// Model points in metres on z = 0.
     pub model: Vec<Point3<f64>>,
+    /// Each hole's pixel sigma (pixels).
+    pub sigma: Vec<f64>,
+    /// d xy / d pixel at each hole (through the lens).
+    pub px_to_xy: Vec<Matrix2<f64>>,
 }
 
 pub(crate) fn rays(obs: &Observations, needed: usize, mode: &'static str) -> Result<Rays, PoseError> {
@@ -147,6 +182,8 @@ pub(crate) fn rays(obs: &Observations, needed: usize, mode: &'static str) -> Res
         whiten: Vec::with_capacity(n),
         covariance: Vec::with_capacity(n),
         model: Vec::with_capacity(n),
+        sigma: Vec::with_capacity(n),
+        px_to_xy: Vec::with_capacity(n),
     };
     for (index, (m, p)) in obs.model_mm.iter().zip(obs.pixels).enumerate() {
         if !(m.x.is_finite() && m.y.is_finite() && p.x.is_finite() && p.y.is_finite()) {
@@ -157,10 +194,13 @@ pub(crate) fn rays(obs: &Observations, needed: usize, mode: &'static str) -> Res
         let jd = cam.distortion_jacobian(xy);
         let jk = Matrix2::new(cam.fx, 0.0, 0.0, cam.fy) * jd;
         let inv = jk.try_inverse().ok_or(PoseError::NonFinite { index })?;
-        let cov = inv * inv.transpose() * obs.pixel_sigma.powi(2);
+        let sigma = obs.sigma_of(index);
+        let cov = inv * inv.transpose() * sigma.powi(2);
         // Whitening W with Wᵀ W = cov⁻¹: W = σ⁻¹ · jk.
-        out.whiten.push(jk / obs.pixel_sigma);
+        out.whiten.push(jk / sigma);
         out.covariance.push(cov);
+        out.sigma.push(sigma);
+        out.px_to_xy.push(inv);
         out.xy.push(xy);
         out.model.push(Point3::new(m.x / 1000.0, m.y / 1000.0, 0.0));
     }
@@ -208,41 +248,100 @@ fn in_front(h: &Point3<f64>) -> bool {
     h.z > 0.0 && h.coords.iter().all(|v| v.is_finite())
 }
 
-/// Holes in the camera frame and their reprojection RMS (pixels).
+/// Holes in the camera frame and the reprojection RMS (pixels) of the kept ones.
 pub(crate) fn holes_and_rms(
     pose: &Isometry3<f64>,
     rays: &Rays,
     camera: &CameraModel,
     pixels: &[Point2<f64>],
+    kept: &[bool],
 ) -> (Vec<Point3<f64>>, f64) {
     let holes: Vec<Point3<f64>> = rays.model.iter().map(|p| pose * p).collect();
-    let mut sum = 0.0;
-    for (h, px) in holes.iter().zip(pixels) {
-        sum += camera.project(h).map_or(1e6, |q| (q - px).norm_squared());
+    let (mut sum, mut n) = (0.0, 0usize);
+    for ((h, px), k) in holes.iter().zip(pixels).zip(kept) {
+        if *k {
+            sum += camera.project(h).map_or(1e6, |q| (q - px).norm_squared());
+            n += 1;
+        }
     }
-    let rms = (sum / holes.len().max(1) as f64).sqrt();
+    let rms = (sum / n.max(1) as f64).sqrt();
     (holes, rms)
+}
+
+/// The fit with the covariance of a pixel shift common to every hole added.
+fn with_common_shift(fit: lm::Fit, rays: &Rays, kept: &[bool], prior: Option<&lm::Prior>) -> lm::Fit {
+    let sigma = robust::common_sigma(rays, kept);
+    match lm::common_shift_covariance(rays, &fit.pose, prior, sigma) {
+        Some(c) => lm::Fit { covariance: fit.covariance + c, ..fit },
+        None => fit,
+    }
+}
+
+fn scaled(covariances: Vec<Matrix3<f64>>, factor: f64) -> Vec<Matrix3<f64>> {
+    covariances.into_iter().map(|c| c * factor).collect()
 }
 
 /// The paper's closed form (section V) with a known wall normal (either sign).
 /// Works from two holes. `normal_sigma_rad` is the normal's uncertainty, used for
 /// the covariances only.
+///
+/// Holes the solution cannot explain are dropped (see [`OUTLIER_CHI2`]); the
+/// pose is then the maximum-likelihood one of the others with the normal as a
+/// prior, started from their closed form.
 pub fn solve_normal(obs: &Observations, normal: &Vector3<f64>, normal_sigma_rad: f64) -> Result<OutletPose, PoseError> {
-    let rays = rays(obs, 2, "normal")?;
+    let mut rays = rays(obs, 2, "normal")?;
     let n = orient_normal(normal, &rays.xy)?;
+    let sigma = normal_sigma_rad.max(0.0);
     let pose = closed_form_normal(&rays.model, &rays.xy, &n).ok_or(PoseError::Collinear)?;
-    let covariances = closed_form::covariances(&rays, &n, normal_sigma_rad.max(0.0));
-    let (holes_cam_m, rms_px) = holes_and_rms(&pose, &rays, obs.camera, obs.pixels);
+    let all = vec![true; rays.model.len()];
+    // The closed form weighs every hole alike: refit only when one is an outlier.
+    let closed = lm::Fit { pose, covariance: nalgebra::Matrix6::identity() };
+    let prior = (sigma > 0.0).then(|| lm::Prior {
+        normal: n.into_inner(),
+        distance_m: 0.0,
+        tangent: tangent_basis(&n),
+        whiten: Matrix3::from_diagonal(&Vector3::new(1.0 / sigma, 1.0 / sigma, 0.0)),
+        with_distance: false,
+    });
+    let (fit, kept) = robust::refit(&mut rays, 2, 4, |r, kept| {
+        if kept.iter().all(|k| *k) {
+            return Some(lm::Fit { pose: closed.pose, covariance: closed.covariance });
+        }
+        let sub = robust::subset(r, kept);
+        let start = closed_form_normal(&sub.model, &sub.xy, &n)?;
+        lm::refine(r, start, prior.as_ref())
+    })
+    .ok_or(PoseError::Collinear)?;
+    // The normal is fixed to within its prior: the pixels determine 4 parameters.
+    let factor = robust::variance_factor(&rays, &fit.pose, &kept, 4);
+    let covariances = if kept == all {
+        let mut c = closed_form::covariances(&rays, &n, sigma);
+        closed_form::add_common_shift(&mut c, &rays, &n, robust::common_sigma(&rays, &kept));
+        c
+    } else {
+        lm::hole_covariances(&with_common_shift(fit.clone(), &rays, &kept, prior.as_ref()), &rays.model)
+    };
+    let (holes_cam_m, rms_px) = holes_and_rms(&fit.pose, &rays, obs.camera, obs.pixels, &kept);
     if !holes_cam_m.iter().all(in_front) {
         return Err(PoseError::BehindCamera);
     }
-    Ok(OutletPose { pose, mode: Mode::Normal, holes_cam_m, covariances, rms_px })
+    Ok(OutletPose {
+        pose: fit.pose,
+        mode: Mode::Normal,
+        holes_cam_m,
+        covariances: scaled(covariances, factor),
+        rms_px,
+        outliers: robust::dropped(&kept),
+        variance_factor: factor,
+    })
 }
 
 /// Normal and distance from stereo: the closed form with the measured distance,
 /// then maximum likelihood over the pose with the plane as a prior.
+///
+/// Holes the solution cannot explain are dropped (see [`OUTLIER_CHI2`]).
 pub fn solve_plane(obs: &Observations, plane: &PlaneMeasurement) -> Result<OutletPose, PoseError> {
-    let rays = rays(obs, 2, "plane")?;
+    let mut rays = rays(obs, 2, "plane")?;
     let finite = plane.distance_m.is_finite()
         && plane.face_offset_m.is_finite()
         && plane.covariance.iter().all(|v| v.is_finite())
@@ -264,26 +363,102 @@ pub fn solve_plane(obs: &Observations, plane: &PlaneMeasurement) -> Result<Outle
         whiten: prior_whiten,
         with_distance: true,
     };
-    let fit = lm::refine(&rays, start, Some(&prior)).ok_or(PoseError::Collinear)?;
-    let (holes_cam_m, rms_px) = holes_and_rms(&fit.pose, &rays, obs.camera, obs.pixels);
+    let (fit, kept) = robust::refit(&mut rays, 3, 3, |r, kept| {
+        let begin = if kept.iter().all(|k| *k) {
+            start
+        } else {
+            let sub = robust::subset(r, kept);
+            closed_form::with_distance(&sub.model, &sub.xy, &n, d_face).unwrap_or(start)
+        };
+        lm::refine(r, begin, Some(&prior))
+    })
+    .ok_or(PoseError::Collinear)?;
+    let (holes_cam_m, rms_px) = holes_and_rms(&fit.pose, &rays, obs.camera, obs.pixels, &kept);
     if !holes_cam_m.iter().all(in_front) {
         return Err(PoseError::BehindCamera);
     }
-    let covariances = lm::hole_covariances(&fit, &rays.model);
-    Ok(OutletPose { pose: fit.pose, mode: Mode::Plane, holes_cam_m, covariances, rms_px })
+    // The plane fixes three of the six parameters.
+    let factor = robust::variance_factor(&rays, &fit.pose, &kept, 3);
+    let fit = with_common_shift(fit, &rays, &kept, Some(&prior));
+    let covariances = scaled(lm::hole_covariances(&fit, &rays.model), factor);
+    Ok(OutletPose {
+        pose: fit.pose,
+        mode: Mode::Plane,
+        holes_cam_m,
+        covariances,
+        rms_px,
+        outliers: robust::dropped(&kept),
+        variance_factor: factor,
+    })
 }
 
-/// Planar PnP from pixels alone.
+/// How much better (in `-2 log` likelihood) the chosen mono solution must explain
+/// the pixels than its mirror: the mirror's posterior odds are `exp(-Δ/2)`, so
+/// 2 ln 1000 leaves it at most a 1-in-1000 chance (equal priors).
+pub const MONO_AMBIGUITY_LLR: f64 = 13.8;
+
+/// Planar PnP from pixels alone. Both mirror solutions are refined; when the
+/// cost of the other exceeds the better one's by less than
+/// [`MONO_AMBIGUITY_LLR`] (after dividing by the better one's cost per degree
+/// of freedom where that exceeds 1, so that noise larger than `pixel_sigma`
+/// does not make a guess look certain), and the two put the holes apart by more
+/// than their covariance, the result is [`PoseError::Ambiguous`]: no pose
+/// rather than a coin toss with a small covariance. Outliers are dropped as in
+/// [`solve_plane`].
 pub fn solve_mono(obs: &Observations) -> Result<OutletPose, PoseError> {
-    let rays = rays(obs, 4, "mono")?;
+    let mut rays = rays(obs, 4, "mono")?;
     check_not_collinear(&rays.model)?;
-    let fit = mono::solve(&rays).ok_or(PoseError::Collinear)?;
-    let (holes_cam_m, rms_px) = holes_and_rms(&fit.pose, &rays, obs.camera, obs.pixels);
+    let solve = |r: &Rays, kept: &[bool]| -> Option<(mono::Solution, Option<mono::Solution>)> {
+        if kept.iter().all(|k| *k) {
+            return mono::solve(r);
+        }
+        // The homography from the kept holes, then both branches refined on all
+        // rays (the dropped ones weigh nothing).
+        let sub = robust::subset(r, kept);
+        let (best, other) = mono::solve(&sub)?;
+        let refit = |s: mono::Solution| {
+            lm::refine(r, s.fit.pose, None).map(|fit| mono::Solution { cost: lm::cost(r, &fit.pose, None), fit })
+        };
+        let best = refit(best)?;
+        let other = other.and_then(refit);
+        Some(match other {
+            Some(o) if o.cost < best.cost => (o, Some(best)),
+            o => (best, o),
+        })
+    };
+    let (fit, kept) =
+        robust::refit(&mut rays, 4, 6, |r, kept| solve(r, kept).map(|(b, _)| b.fit)).ok_or(PoseError::Collinear)?;
+    let (best, other) = solve(&rays, &kept).ok_or(PoseError::Collinear)?;
+    let fit = if best.cost <= lm::cost(&rays, &fit.pose, None) { best.fit } else { fit };
+    let best_cost = lm::cost(&rays, &fit.pose, None);
+    let (holes_cam_m, rms_px) = holes_and_rms(&fit.pose, &rays, obs.camera, obs.pixels, &kept);
     if !holes_cam_m.iter().all(in_front) {
         return Err(PoseError::BehindCamera);
     }
-    let covariances = lm::hole_covariances(&fit, &rays.model);
-    Ok(OutletPose { pose: fit.pose, mode: Mode::Mono, holes_cam_m, covariances, rms_px })
+    let factor = robust::variance_factor(&rays, &fit.pose, &kept, 6);
+    let fit = with_common_shift(fit, &rays, &kept, None);
+    let covariances = scaled(lm::hole_covariances(&fit, &rays.model), factor);
+    if let Some(other) = other {
+        let other_holes: Vec<Point3<f64>> = rays.model.iter().map(|p| other.fit.pose * p).collect();
+        let other_in_front = other_holes.iter().all(in_front);
+        // The mirror counts only where it is a different place for the holes.
+        let apart = holes_cam_m.iter().zip(&other_holes).zip(&covariances).any(|((a, b), c)| {
+            let e = b - a;
+            c.cholesky().is_none_or(|l| e.dot(&l.solve(&e)) > 16.27)
+        });
+        if other_in_front && apart && (other.cost - best_cost) / factor < MONO_AMBIGUITY_LLR {
+            return Err(PoseError::Ambiguous { best_cost, other_cost: other.cost });
+        }
+    }
+    Ok(OutletPose {
+        pose: fit.pose,
+        mode: Mode::Mono,
+        holes_cam_m,
+        covariances,
+        rms_px,
+        outliers: robust::dropped(&kept),
+        variance_factor: factor,
+    })
 }
 
 /// The Cramér-Rao bound of each hole's position for a true pose: the covariance an

@@ -19,6 +19,7 @@ pub(crate) struct Prior {
 
 /// A refined pose and the covariance of its parameters (rotation vector applied
 /// on the left, translation).
+#[derive(Clone)]
 pub(crate) struct Fit {
     pub pose: Isometry3<f64>,
     pub covariance: Matrix6<f64>,
@@ -162,4 +163,48 @@ pub(crate) fn hole_covariances(fit: &Fit, model: &[Point3<f64>]) -> Vec<Matrix3<
             (c + c.transpose()) * 0.5
         })
         .collect()
+}
+
+/// Each hole's squared whitened reprojection residual at a pose (2 degrees of
+/// freedom each when the pixel noise is as assumed); infinite behind the camera.
+pub(crate) fn hole_costs(rays: &Rays, pose: &Isometry3<f64>) -> Vec<f64> {
+    rays.model
+        .iter()
+        .zip(&rays.xy)
+        .zip(&rays.whiten)
+        .map(|((p, obs), w)| {
+            let x = pose * p;
+            if x.z.is_nan() || x.z <= 1e-9 {
+                return f64::INFINITY;
+            }
+            (w * nalgebra::Vector2::new(x.x / x.z - obs.x, x.y / x.z - obs.y)).norm_squared()
+        })
+        .collect()
+}
+
+/// The covariance (pose parameters) that a shift of every pixel by the same
+/// unknown amount, `sigma_px` on each image axis, adds to a fit: the estimate
+/// moves by `-(Jᵀ J)⁻¹ Jᵀ δr`, where hole k's whitened residual moves by
+/// `c / σ_k` for a common pixel shift `c`.
+pub(crate) fn common_shift_covariance(
+    rays: &Rays,
+    pose: &Isometry3<f64>,
+    prior: Option<&Prior>,
+    sigma_px: f64,
+) -> Option<Matrix6<f64>> {
+    let (res, jac) = linearise(rays, pose, prior)?;
+    let (jtj, _, _) = normal_equations(&res, &jac);
+    let inv = jtj.try_inverse()?;
+    let mut g = SMatrix::<f64, 6, 2>::zeros();
+    for (k, s) in rays.sigma.iter().enumerate() {
+        for axis in 0..2 {
+            // Row 2k + axis of the whitened residual moves by 1/σ_k per pixel on `axis`.
+            let row = jac.get(2 * k + axis)?;
+            let col = row.transpose() / *s;
+            let mut c = g.column_mut(axis);
+            c += col;
+        }
+    }
+    let g = inv * g;
+    Some(g * g.transpose() * sigma_px * sigma_px)
 }

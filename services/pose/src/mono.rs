@@ -1,7 +1,8 @@
 //! Planar PnP from pixels alone: the homography of the holes' plane, decomposed
 //! into a pose; its mirror (the plane tilted the other way about the line of
 //! sight, which explains the pixels almost as well when the outlet is small or
-//! far) is refined too, and the one with the lower reprojection error is kept.
+//! far) is refined too. Both are returned with their costs: the caller decides
+//! whether the pixels tell them apart.
 
 use crate::Rays;
 use crate::lm::{self, Fit};
@@ -54,12 +55,22 @@ fn mirrored(pose: &Isometry3<f64>, rays: &Rays) -> Option<Isometry3<f64>> {
     Some(Isometry3::from_parts(Translation3::from(t), rotation))
 }
 
-pub(crate) fn solve(rays: &Rays) -> Option<Fit> {
+/// A refined pose and its cost (sum of squared whitened residuals).
+pub(crate) struct Solution {
+    pub fit: Fit,
+    pub cost: f64,
+}
+
+/// The better of the two mirror solutions, and the other when it converged.
+pub(crate) fn solve(rays: &Rays) -> Option<(Solution, Option<Solution>)> {
     let start = decompose(&homography(rays)?)?;
     let first = lm::refine(rays, start, None)?;
-    let second = mirrored(&first.pose, rays).and_then(|m| lm::refine(rays, m, None));
-    match second {
-        Some(s) if lm::cost(rays, &s.pose, None) < lm::cost(rays, &first.pose, None) => Some(s),
-        _ => Some(first),
-    }
+    let first = Solution { cost: lm::cost(rays, &first.pose, None), fit: first };
+    let second = mirrored(&first.fit.pose, rays)
+        .and_then(|m| lm::refine(rays, m, None))
+        .map(|fit| Solution { cost: lm::cost(rays, &fit.pose, None), fit });
+    Some(match second {
+        Some(s) if s.cost < first.cost => (s, Some(first)),
+        other => (first, other),
+    })
 }

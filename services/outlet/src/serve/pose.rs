@@ -139,7 +139,13 @@ fn solve(
     let camera = d.camera().map_err(|e| format!("detection {}: {e}", d.frame_id))?;
     let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
     let pixels: Vec<Point2<f64>> = d.holes[..model.len()].iter().map(|h| Point2::new(h.pixel[0], h.pixel[1])).collect();
-    let obs = Observations { model_mm: &model, pixels: &pixels, camera: &camera, pixel_sigma: config.pixel_sigma };
+    let obs = Observations {
+        model_mm: &model,
+        pixels: &pixels,
+        camera: &camera,
+        pixel_sigma: config.pixel_sigma,
+        pixel_sigmas: None,
+    };
     let plane = recent
         .iter()
         .min_by_key(|p| p.capture_time_ns.abs_diff(d.capture_time_ns))
