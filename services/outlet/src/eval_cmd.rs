@@ -35,6 +35,11 @@ pub struct EvalArgs {
     pub tolerance_px: f64,
     #[command(flatten)]
     pub camera: CameraArgs,
+    /// Instead of Table I: whether the pose covariances hold, the NEES of every
+    /// hole per pose mode over the positive scenarios (`nees.md`, `nees.jsonl`;
+    /// `--count` frames per scenario, default 150).
+    #[arg(long)]
+    pub nees: bool,
 }
 
 /// The outcome of one image.
@@ -84,6 +89,9 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
 }
 
 pub fn eval(args: EvalArgs) -> Result<()> {
+    if args.nees {
+        return crate::nees::eval_nees(&args);
+    }
     let camera = args.camera.camera()?;
     let scenarios: Vec<&str> =
         if args.scenario == "all" {

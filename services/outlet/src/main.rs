@@ -4,6 +4,7 @@ mod demo;
 mod detect_cmd;
 mod eval_cmd;
 mod font;
+mod nees;
 mod record;
 mod render_cmd;
 mod serve;
