@@ -40,6 +40,21 @@ pub struct EvalArgs {
     /// `--count` frames per scenario, default 150).
     #[arg(long)]
     pub nees: bool,
+    /// Evaluate on the labelled photographs of this folder (`*.labels.json`, as
+    /// `outlet train` takes them; `camera.yaml` optional) and on turned and zoomed
+    /// views of each, instead of rendered scenarios. Repeat it to keep labels in
+    /// one folder and the photographs in another.
+    #[arg(long)]
+    pub photos: Vec<PathBuf>,
+    /// With --photos: turned views per photograph.
+    #[arg(long, default_value_t = 30)]
+    pub views: usize,
+    /// With --photos: the template (built-in name or file); default each label file's own.
+    #[arg(long)]
+    pub template: Option<String>,
+    /// With --photos: the largest turn of a view's optical axis (degrees).
+    #[arg(long, default_value_t = 25.0)]
+    pub max_turn_deg: f64,
 }
 
 /// The outcome of one image.
@@ -91,6 +106,17 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
 pub fn eval(args: EvalArgs) -> Result<()> {
     if args.nees {
         return crate::nees::eval_nees(&args);
+    }
+    if !args.photos.is_empty() {
+        return crate::photos_cmd::eval_photos(&crate::photos_cmd::PhotoEvalArgs {
+            dirs: &args.photos,
+            out: &args.out,
+            views: args.views,
+            seed: args.seed,
+            template: args.template.as_deref(),
+            max_turn_deg: args.max_turn_deg,
+            slot_px: [8.0, 30.0],
+        });
     }
     let camera = args.camera.camera()?;
     let scenarios: Vec<&str> =

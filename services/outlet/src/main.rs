@@ -5,6 +5,7 @@ mod detect_cmd;
 mod eval_cmd;
 mod font;
 mod nees;
+mod photos_cmd;
 mod record;
 mod render_cmd;
 mod serve;
