@@ -254,10 +254,17 @@ pub struct HolePosesMsg {
     pub capture_time_ns: u64,
     /// When the pose was published, nanoseconds since the Unix epoch.
     pub published_ns: u64,
-    /// 1 mono, 2 normal, 3 plane.
+    /// 1 mono, 2 normal, 3 plane: what the pose was (or, when `status` is not
+    /// [`pose_status::OK`], would have been) solved with.
     pub mode: u32,
+    /// [`pose_status`]: whether there is a pose to act on.
+    pub status: u32,
+    /// Bit k set: hole k's pixel could not be explained and was not used; its
+    /// position comes from the other holes through the outlet's geometry.
+    pub outlier_mask: u32,
     pub reserved: u32,
-    /// Outlet to camera: row-major rotation, translation (m).
+    /// Outlet to camera: row-major rotation, translation (m); NaN unless `status`
+    /// is [`pose_status::OK`].
     pub rotation: [f64; 9],
     pub translation_m: [f64; 3],
     /// 1 power, 2 ground, per hole.
@@ -268,8 +275,22 @@ pub struct HolePosesMsg {
     pub covariances_m2: [[f64; 9]; MAX_HOLES],
 }
 
+/// [`HolePosesMsg::status`] codes.
+pub mod pose_status {
+    /// The holes and the pose hold, within their covariances.
+    pub const OK: u32 = 1;
+    /// From pixels alone (mono) two mirror poses explain the holes about equally:
+    /// no pose, no holes (`hole_count` 0).
+    pub const AMBIGUOUS: u32 = 2;
+    /// A wall plane was measured but cannot explain the detected holes (a wrong
+    /// hole, or a plane of something else): no pose, no holes. Never quietly
+    /// solved from the pixels alone instead.
+    pub const PLANE_MISMATCH: u32 = 3;
+}
+
 impl HolePosesMsg {
-    /// Whether the message is one this build can read, with finite positions.
+    /// Whether the message is one this build can read: a known status, finite
+    /// positions, and no holes unless the status is [`pose_status::OK`].
     pub fn validate(&self) -> Result<(), WireError> {
         if self.schema_version != SCHEMA_VERSION {
             return Err(WireError::Schema { found: self.schema_version, expected: SCHEMA_VERSION });
@@ -278,7 +299,14 @@ impl HolePosesMsg {
         if n > MAX_HOLES || !self.positions_m[..n].iter().flatten().all(|v| v.is_finite()) {
             return Err(WireError::Result { frame_id: self.frame_id, reason: "hole count or positions invalid" });
         }
-        Ok(())
+        match self.status {
+            pose_status::OK => Ok(()),
+            pose_status::AMBIGUOUS | pose_status::PLANE_MISMATCH if n == 0 => Ok(()),
+            pose_status::AMBIGUOUS | pose_status::PLANE_MISMATCH => {
+                Err(WireError::Result { frame_id: self.frame_id, reason: "holes in a result without a pose" })
+            }
+            _ => Err(WireError::Result { frame_id: self.frame_id, reason: "unknown status" }),
+        }
     }
 }
 

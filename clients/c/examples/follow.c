@@ -71,6 +71,13 @@ int main(int argc, char **argv) {
         const char *mode = poses.mode == OUTLET_MODE_PLANE    ? "plane"
                            : poses.mode == OUTLET_MODE_NORMAL ? "normal"
                                                               : "mono";
+        if (poses.status != OUTLET_STATUS_OK) {
+            /* No pose this frame: ambiguous from pixels alone, or the stereo plane disagrees. */
+            printf("frame %" PRIu64 " (%s): no pose (%s)\n", poses.frame_id, mode,
+                   poses.status == OUTLET_STATUS_AMBIGUOUS ? "ambiguous" : "plane mismatch");
+            fflush(stdout);
+            continue;
+        }
         printf("frame %" PRIu64 " (%s): %u holes, age %.1f ms\n", poses.frame_id, mode, poses.hole_count, age_ms);
         for (uint32_t k = 0; k < poses.hole_count && k < OUTLET_MAX_HOLES; k++) {
             const OutletHole *h = &poses.holes[k];

@@ -44,6 +44,17 @@
 // [`OutletHolePoses::mode`]: with the wall plane fitted to the stereo cloud.
 #define OUTLET_MODE_PLANE 3
 
+// [`OutletHolePoses::status`]: the holes and the pose hold within their covariances.
+#define OUTLET_STATUS_OK 1
+
+// [`OutletHolePoses::status`]: from pixels alone two mirror poses explain the
+// holes about equally; no holes (`hole_count` 0), rotation and translation NaN.
+#define OUTLET_STATUS_AMBIGUOUS 2
+
+// [`OutletHolePoses::status`]: the stereo wall plane cannot explain the detected
+// holes; no holes (`hole_count` 0), rotation and translation NaN.
+#define OUTLET_STATUS_PLANE_MISMATCH 3
+
 // A connection to one sidecar (opaque). Made by [`outlet_client_connect`],
 // released by [`outlet_client_free`].
 typedef struct OutletClient OutletClient;
@@ -52,8 +63,9 @@ typedef struct OutletClient OutletClient;
 typedef struct OutletHole {
   // [`OUTLET_HOLE_POWER`] or [`OUTLET_HOLE_GROUND`].
   uint32_t kind;
-  // Always 0 (padding).
-  uint32_t reserved;
+  // 1 when the hole's pixel could not be explained with the others and was
+  // not used (its position comes from them), else 0.
+  uint32_t outlier;
   // Camera frame (x right, y down, z forward), metres.
   double position_m[3];
   // Covariance of `position_m` (m²), row-major 3x3.
@@ -72,11 +84,19 @@ typedef struct OutletHolePoses {
   uint64_t received_ns;
   // [`OUTLET_MODE_MONO`], [`OUTLET_MODE_NORMAL`] or [`OUTLET_MODE_PLANE`].
   uint32_t mode;
-  // How many of `holes` are filled, at most [`OUTLET_MAX_HOLES`].
+  // How many of `holes` are filled, at most [`OUTLET_MAX_HOLES`]; 0 unless
+  // `status` is [`OUTLET_STATUS_OK`].
   uint32_t hole_count;
-  // Rotation from the outlet frame to the camera frame, row-major 3x3.
+  // [`OUTLET_STATUS_OK`], [`OUTLET_STATUS_AMBIGUOUS`] or
+  // [`OUTLET_STATUS_PLANE_MISMATCH`]: check it before using the holes.
+  uint32_t status;
+  // Always 0 (padding).
+  uint32_t reserved;
+  // Rotation from the outlet frame to the camera frame, row-major 3x3 (NaN
+  // unless `status` is [`OUTLET_STATUS_OK`]).
   double rotation[9];
-  // The outlet frame's origin in the camera frame, metres.
+  // The outlet frame's origin in the camera frame, metres (NaN unless
+  // `status` is [`OUTLET_STATUS_OK`]).
   double translation_m[3];
   // The holes in the template's order; entries past `hole_count` are zero.
   struct OutletHole holes[OUTLET_MAX_HOLES];

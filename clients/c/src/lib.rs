@@ -9,7 +9,8 @@
 //! if (!client) { char e[256]; outlet_last_error(e, sizeof e); fprintf(stderr, "%s\n", e); return 1; }
 //! OutletHolePoses poses;
 //! int rc = outlet_client_wait_next(client, 1000, &poses);      /* 1 got one, 0 timeout, < 0 error */
-//! if (rc == OUTLET_OK) printf("%u holes, first at z = %f m\n", poses.hole_count, poses.holes[0].position_m[2]);
+//! if (rc == OUTLET_OK && poses.status == OUTLET_STATUS_OK)        /* else no pose this frame, and why */
+//!     printf("%u holes, first at z = %f m\n", poses.hole_count, poses.holes[0].position_m[2]);
 //! outlet_client_free(client);
 //! ```
 //!
@@ -58,6 +59,14 @@ pub const OUTLET_MODE_MONO: u32 = 1;
 pub const OUTLET_MODE_NORMAL: u32 = 2;
 /// [`OutletHolePoses::mode`]: with the wall plane fitted to the stereo cloud.
 pub const OUTLET_MODE_PLANE: u32 = 3;
+/// [`OutletHolePoses::status`]: the holes and the pose hold within their covariances.
+pub const OUTLET_STATUS_OK: u32 = 1;
+/// [`OutletHolePoses::status`]: from pixels alone two mirror poses explain the
+/// holes about equally; no holes (`hole_count` 0), rotation and translation NaN.
+pub const OUTLET_STATUS_AMBIGUOUS: u32 = 2;
+/// [`OutletHolePoses::status`]: the stereo wall plane cannot explain the detected
+/// holes; no holes (`hole_count` 0), rotation and translation NaN.
+pub const OUTLET_STATUS_PLANE_MISMATCH: u32 = 3;
 
 /// A connection to one sidecar (opaque). Made by [`outlet_client_connect`],
 /// released by [`outlet_client_free`].
@@ -71,8 +80,9 @@ pub struct OutletClient {
 pub struct OutletHole {
     /// [`OUTLET_HOLE_POWER`] or [`OUTLET_HOLE_GROUND`].
     pub kind: u32,
-    /// Always 0 (padding).
-    pub reserved: u32,
+    /// 1 when the hole's pixel could not be explained with the others and was
+    /// not used (its position comes from them), else 0.
+    pub outlier: u32,
     /// Camera frame (x right, y down, z forward), metres.
     pub position_m: [f64; 3],
     /// Covariance of `position_m` (m²), row-major 3x3.
@@ -93,17 +103,25 @@ pub struct OutletHolePoses {
     pub received_ns: u64,
     /// [`OUTLET_MODE_MONO`], [`OUTLET_MODE_NORMAL`] or [`OUTLET_MODE_PLANE`].
     pub mode: u32,
-    /// How many of `holes` are filled, at most [`OUTLET_MAX_HOLES`].
+    /// How many of `holes` are filled, at most [`OUTLET_MAX_HOLES`]; 0 unless
+    /// `status` is [`OUTLET_STATUS_OK`].
     pub hole_count: u32,
-    /// Rotation from the outlet frame to the camera frame, row-major 3x3.
+    /// [`OUTLET_STATUS_OK`], [`OUTLET_STATUS_AMBIGUOUS`] or
+    /// [`OUTLET_STATUS_PLANE_MISMATCH`]: check it before using the holes.
+    pub status: u32,
+    /// Always 0 (padding).
+    pub reserved: u32,
+    /// Rotation from the outlet frame to the camera frame, row-major 3x3 (NaN
+    /// unless `status` is [`OUTLET_STATUS_OK`]).
     pub rotation: [f64; 9],
-    /// The outlet frame's origin in the camera frame, metres.
+    /// The outlet frame's origin in the camera frame, metres (NaN unless
+    /// `status` is [`OUTLET_STATUS_OK`]).
     pub translation_m: [f64; 3],
     /// The holes in the template's order; entries past `hole_count` are zero.
     pub holes: [OutletHole; OUTLET_MAX_HOLES],
 }
 
-const EMPTY_HOLE: OutletHole = OutletHole { kind: 0, reserved: 0, position_m: [0.0; 3], covariance_m2: [0.0; 9] };
+const EMPTY_HOLE: OutletHole = OutletHole { kind: 0, outlier: 0, position_m: [0.0; 3], covariance_m2: [0.0; 9] };
 
 fn ns(t: SystemTime) -> u64 {
     t.duration_since(UNIX_EPOCH).map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
@@ -118,7 +136,7 @@ impl From<&HolePoses> for OutletHolePoses {
                     HoleKind::Power => OUTLET_HOLE_POWER,
                     HoleKind::Ground => OUTLET_HOLE_GROUND,
                 },
-                reserved: 0,
+                outlier: hole.outlier.into(),
                 position_m: hole.position_m,
                 covariance_m2: std::array::from_fn(|k| hole.covariance_m2[k / 3][k % 3]),
             };
@@ -130,6 +148,8 @@ impl From<&HolePoses> for OutletHolePoses {
             received_ns: ns(p.received),
             mode: p.mode.code(),
             hole_count: p.holes.len().min(OUTLET_MAX_HOLES) as u32,
+            status: p.status.code(),
+            reserved: 0,
             rotation: std::array::from_fn(|k| p.rotation[k / 3][k % 3]),
             translation_m: p.translation_m,
             holes,

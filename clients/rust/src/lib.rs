@@ -27,6 +27,10 @@
 //!     let mut client = Client::connect("outlet")?;
 //!     loop {
 //!         match client.wait_next(Duration::from_secs(1))? {
+//!             // Ambiguous or plane mismatch: no pose this frame, and why.
+//!             Some(poses) if !poses.is_usable() => {
+//!                 println!("frame {}: no pose ({})", poses.frame_id, poses.status.as_str())
+//!             }
 //!             Some(poses) if poses.age() < Duration::from_millis(200) => {
 //!                 for hole in poses.holes.iter().filter(|h| h.kind == HoleKind::Power) {
 //!                     let [x, y, z] = hole.position_m;
@@ -50,6 +54,25 @@
 //! lives on the thread that connected it. Connect one client per thread if
 //! several threads need results.
 //!
+//! # What a result means
+//!
+//! Every result carries a [`PoseStatus`]:
+//!
+//! - [`PoseStatus::Ok`]: each hole's position with a covariance meant to hold:
+//!   over rendered scenes the normalised error `e^T C^-1 e` of a hole is
+//!   checked against chi-square with 3 degrees of freedom (BENCHMARKS.md,
+//!   "Honest covariances"). A hole marked [`Hole::outlier`] was not seen where the
+//!   others put it; its position comes from them.
+//! - [`PoseStatus::Ambiguous`]: from the pixels alone (mode mono, no stereo
+//!   plane) two mirror-image poses explain the holes about equally; no holes.
+//! - [`PoseStatus::PlaneMismatch`]: the wall plane from stereo cannot explain
+//!   the detected holes; no holes. The sidecar does not fall back to a pose from
+//!   the pixels alone, which in that case was seen to be centimetres off.
+//!
+//! A result without a pose is still a result: [`Client::no_result_since`] and
+//! [`HolePoses::age`] count it, so a controller can tell "the sidecar sees the
+//! outlet but cannot vouch for it" from "nothing".
+//!
 //! Frames and units: positions are in the camera frame of `CONTRACT.md` (x
 //! right, y down, z forward), in metres; covariances in square metres.
 
@@ -64,4 +87,4 @@ pub use client::{Client, ClientBuilder, DEFAULT_NODE_NAME};
 pub use error::{ClientError, Rejection};
 pub use outlet_protocol::HoleKind;
 pub use outlet_protocol::shm::DEFAULT_DOMAIN;
-pub use types::{Heartbeat, Hole, HolePoses, PoseMode};
+pub use types::{Heartbeat, Hole, HolePoses, PoseMode, PoseStatus};

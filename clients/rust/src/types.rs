@@ -2,7 +2,7 @@
 
 use crate::error::Rejection;
 use outlet_protocol::HoleKind;
-use outlet_protocol::wire::{HeartbeatMsg, HolePosesMsg, SCHEMA_VERSION, WireError};
+use outlet_protocol::wire::{HeartbeatMsg, HolePosesMsg, SCHEMA_VERSION, WireError, pose_status};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 /// The time `ns` nanoseconds after the Unix epoch.
@@ -53,6 +53,55 @@ impl PoseMode {
     }
 }
 
+/// Whether a result holds a pose to act on.
+///
+/// Only [`PoseStatus::Ok`] results carry holes; the others say why there is no
+/// pose this frame, so that a controller can tell "nothing trustworthy" from
+/// "nothing seen". The sidecar never replaces a pose it cannot trust with a
+/// quieter guess.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum PoseStatus {
+    /// The holes and the pose hold within their covariances.
+    Ok,
+    /// From the pixels alone (mono), two mirror-image poses explain the holes
+    /// about equally: the outlet is small or seen too squarely to choose. No
+    /// holes; move closer or give the sidecar a stereo cloud.
+    Ambiguous,
+    /// A wall plane was measured but cannot explain the detected holes (a hole
+    /// found in the wrong place, or a plane of something else). No holes.
+    PlaneMismatch,
+}
+
+impl PoseStatus {
+    /// The status of a wire code ([`pose_status`]: 1 ok, 2 ambiguous, 3 plane mismatch).
+    pub fn from_code(code: u32) -> Option<Self> {
+        match code {
+            pose_status::OK => Some(Self::Ok),
+            pose_status::AMBIGUOUS => Some(Self::Ambiguous),
+            pose_status::PLANE_MISMATCH => Some(Self::PlaneMismatch),
+            _ => None,
+        }
+    }
+
+    /// The wire code of the status.
+    pub fn code(self) -> u32 {
+        match self {
+            Self::Ok => pose_status::OK,
+            Self::Ambiguous => pose_status::AMBIGUOUS,
+            Self::PlaneMismatch => pose_status::PLANE_MISMATCH,
+        }
+    }
+
+    /// `ok`, `ambiguous` or `plane_mismatch`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Ok => "ok",
+            Self::Ambiguous => "ambiguous",
+            Self::PlaneMismatch => "plane_mismatch",
+        }
+    }
+}
+
 /// One hole of the outlet.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hole {
@@ -62,6 +111,10 @@ pub struct Hole {
     pub position_m: [f64; 3],
     /// The covariance of `position_m` (camera frame, m²), rows then columns.
     pub covariance_m2: [[f64; 3]; 3],
+    /// The hole's pixel could not be explained with the others and was not used:
+    /// its position comes from the other holes through the outlet's geometry
+    /// (and its covariance says how well).
+    pub outlier: bool,
 }
 
 impl Hole {
@@ -83,14 +136,20 @@ pub struct HolePoses {
     pub published: SystemTime,
     /// When this client took it out of shared memory.
     pub received: SystemTime,
-    /// What the pose was solved with.
+    /// What the pose was solved with (or, when `status` is not
+    /// [`PoseStatus::Ok`], what was tried).
     pub mode: PoseMode,
+    /// Whether there is a pose to act on; check it before `holes`.
+    pub status: PoseStatus,
     /// The outlet's orientation: rotation from the outlet frame (`CONTRACT.md`)
-    /// to the camera frame, `rotation[row][column]`.
+    /// to the camera frame, `rotation[row][column]`; NaN unless `status` is
+    /// [`PoseStatus::Ok`].
     pub rotation: [[f64; 3]; 3],
-    /// The outlet frame's origin in the camera frame (metres).
+    /// The outlet frame's origin in the camera frame (metres); NaN unless
+    /// `status` is [`PoseStatus::Ok`].
     pub translation_m: [f64; 3],
-    /// The holes, in the template's order.
+    /// The holes, in the template's order; empty unless `status` is
+    /// [`PoseStatus::Ok`].
     pub holes: Vec<Hole>,
 }
 
@@ -98,13 +157,17 @@ impl HolePoses {
     /// Checks a message from shared memory and converts it; `received` is when it
     /// was taken out. Refuses what [`HolePosesMsg::validate`] refuses (schema
     /// version, hole count above [`MAX_HOLES`](outlet_protocol::wire::MAX_HOLES),
-    /// non-finite positions), unknown mode or hole kind codes, and a non-finite
-    /// rotation or translation. Covariances are passed on as they are.
+    /// non-finite positions, unknown status, holes in a result without a pose),
+    /// unknown mode or hole kind codes, and a non-finite rotation or translation
+    /// in a result with a pose. Covariances are passed on as they are.
     pub fn from_msg(msg: &HolePosesMsg, received: SystemTime) -> Result<Self, Rejection> {
         msg.validate()?;
         let frame_id = msg.frame_id;
         let mode = PoseMode::from_code(msg.mode).ok_or(Rejection::UnknownMode { frame_id, code: msg.mode })?;
-        if !msg.rotation.iter().chain(&msg.translation_m).all(|v| v.is_finite()) {
+        // validate() has refused unknown status codes.
+        let status =
+            PoseStatus::from_code(msg.status).ok_or(WireError::Result { frame_id, reason: "unknown status" })?;
+        if status == PoseStatus::Ok && !msg.rotation.iter().chain(&msg.translation_m).all(|v| v.is_finite()) {
             return Err(Rejection::PoseNotFinite { frame_id });
         }
         // validate() has checked hole_count <= MAX_HOLES; take() keeps this safe regardless.
@@ -119,7 +182,8 @@ impl HolePoses {
                 _ => return Err(Rejection::UnknownHoleKind { frame_id, index, code }),
             };
             let covariance_m2 = std::array::from_fn(|r| std::array::from_fn(|c| covariance[3 * r + c]));
-            holes.push(Hole { kind, position_m, covariance_m2 });
+            let outlier = index < 32 && msg.outlier_mask & (1 << index) != 0;
+            holes.push(Hole { kind, position_m, covariance_m2, outlier });
         }
         Ok(Self {
             frame_id,
@@ -127,10 +191,16 @@ impl HolePoses {
             published: time_from_ns(msg.published_ns),
             received,
             mode,
+            status,
             rotation: std::array::from_fn(|r| std::array::from_fn(|c| msg.rotation[3 * r + c])),
             translation_m: msg.translation_m,
             holes,
         })
+    }
+
+    /// Whether the result holds a pose to act on ([`PoseStatus::Ok`]).
+    pub fn is_usable(&self) -> bool {
+        self.status == PoseStatus::Ok
     }
 
     /// How old the result is now: the time since its frame was captured (zero if
@@ -265,6 +335,8 @@ mod tests {
             capture_time_ns: 1_000_000_000,
             published_ns: 1_020_000_000,
             mode: 3,
+            status: 1,
+            outlier_mask: 0,
             reserved: 0,
             rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
             translation_m: [0.0, 0.0, 0.3],
@@ -284,6 +356,8 @@ mod tests {
     fn a_valid_message_becomes_typed_poses() {
         let p = HolePoses::from_msg(&msg(), time_from_ns(1_030_000_000)).expect("valid");
         assert_eq!(p.mode, PoseMode::Plane);
+        assert!(p.is_usable());
+        assert!(!p.holes[0].outlier);
         assert_eq!(p.holes.len(), 2);
         assert_eq!(p.holes[1].kind, HoleKind::Ground);
         assert_eq!(p.holes[1].covariance_m2[0][1], 2e-9);
@@ -309,6 +383,35 @@ mod tests {
         let mut bad_pose = msg();
         bad_pose.translation_m[2] = f64::INFINITY;
         assert_eq!(HolePoses::from_msg(&bad_pose, SystemTime::now()), Err(Rejection::PoseNotFinite { frame_id: 5 }));
+    }
+
+    #[test]
+    fn results_without_a_pose_say_why_and_carry_no_holes() {
+        let nan = HolePosesMsg {
+            status: pose_status::AMBIGUOUS,
+            mode: 1,
+            hole_count: 0,
+            rotation: [f64::NAN; 9],
+            translation_m: [f64::NAN; 3],
+            ..msg()
+        };
+        let p = HolePoses::from_msg(&nan, SystemTime::now()).expect("valid");
+        assert_eq!(p.status, PoseStatus::Ambiguous);
+        assert!(!p.is_usable() && p.holes.is_empty());
+        let mismatch = HolePosesMsg { status: pose_status::PLANE_MISMATCH, hole_count: 0, ..msg() };
+        assert_eq!(HolePoses::from_msg(&mismatch, SystemTime::now()).map(|p| p.status), Ok(PoseStatus::PlaneMismatch));
+        // Holes in a result without a pose, and unknown status codes, are refused.
+        assert!(
+            HolePoses::from_msg(&HolePosesMsg { status: pose_status::AMBIGUOUS, ..msg() }, SystemTime::now()).is_err()
+        );
+        assert!(HolePoses::from_msg(&HolePosesMsg { status: 0, ..msg() }, SystemTime::now()).is_err());
+        assert!(HolePoses::from_msg(&HolePosesMsg { status: 9, ..msg() }, SystemTime::now()).is_err());
+        // The outlier mask marks holes whose pixels were not used.
+        let p = HolePoses::from_msg(&HolePosesMsg { outlier_mask: 0b10, ..msg() }, SystemTime::now()).expect("valid");
+        assert_eq!(p.holes.iter().map(|h| h.outlier).collect::<Vec<_>>(), vec![false, true]);
+        for s in [PoseStatus::Ok, PoseStatus::Ambiguous, PoseStatus::PlaneMismatch] {
+            assert_eq!(PoseStatus::from_code(s.code()), Some(s));
+        }
     }
 
     #[test]

@@ -80,6 +80,8 @@ fn poses(frame_id: u64) -> HolePosesMsg {
         capture_time_ns: now_ns() - 40_000_000,
         published_ns: now_ns(),
         mode: 3,
+        status: 1,
+        outlier_mask: 0,
         reserved: 0,
         rotation: [1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0],
         translation_m: [0.01, -0.02, 0.3],

@@ -48,10 +48,12 @@ pub struct PoseConfig {
     /// How long a detection waits for the plane of its own frame (ms) before
     /// it is joined with the closest plane there is.
     pub plane_wait_ms: f64,
-    /// Standard deviation of a detected hole's pixel (px).
+    /// Standard deviation of a detected hole's pixel (px), for holes the detector
+    /// gives no `sigma_px` of their own.
     pub pixel_sigma: f64,
-    /// A plane whose pose leaves a larger RMS reprojection error (px) belongs to
-    /// another wall than the detection's: the pose falls back to `mono`.
+    /// A plane whose pose leaves a larger RMS reprojection error (px) over the
+    /// holes it kept cannot explain the detection (another wall, a wrong hole):
+    /// the result says `plane_mismatch` and carries no pose.
     pub max_rms_px: f64,
 }
 

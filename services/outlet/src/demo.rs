@@ -9,7 +9,7 @@ use clap::Args;
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use outlet::config::Config;
-use outlet_client::{Client, HolePoses};
+use outlet_client::{Client, HolePoses, PoseStatus};
 use outlet_protocol::shm;
 use outlet_protocol::wire::{DetectionMsg, TruthMsg, service};
 use serde::Serialize;
@@ -49,11 +49,19 @@ pub struct DemoArgs {
     pub sim: SimCameraArgs,
 }
 
+/// A hole further than this from the truth makes its result a false alarm (mm).
+const FALSE_ALARM_MM: f64 = 3.0;
+/// ... and so does one further than this many of its own standard deviations
+/// (`sqrt(e^T C^-1 e)`): an error bar that does not hold is a false alarm too.
+const FALSE_ALARM_SIGMAS: f64 = 5.0;
+
 /// One result as `--json` prints it.
 #[derive(Debug, Serialize)]
 struct ResultLine {
     frame_id: u64,
     mode: &'static str,
+    /// `ok`, or why there is no pose (`ambiguous`, `plane_mismatch`).
+    status: &'static str,
     capture_time_ns: u64,
     /// Capture to receipt by this client (ms).
     latency_ms: f64,
@@ -64,8 +72,14 @@ struct ResultLine {
     holes: Vec<HoleLine>,
     /// Largest hole error against the simulated truth (mm); None without truth.
     max_error_mm: Option<f64>,
-    /// A result where the simulated frame holds no outlet.
+    /// Largest hole error in its own standard deviations, `sqrt(e^T C^-1 e)`.
+    max_error_sigmas: Option<f64>,
+    /// A pose an arm would act on wrongly: the frame holds no outlet (or the
+    /// result another number of holes), or a hole is more than 3 mm or 5 sigma
+    /// from the truth. Results without a pose are never false alarms.
     false_alarm: bool,
+    /// Why it is one: `no_outlet`, `beyond_3mm`, `beyond_5sigma`.
+    false_alarm_reason: Option<&'static str>,
 }
 
 #[derive(Debug, Serialize)]
@@ -74,6 +88,10 @@ struct HoleLine {
     position_m: [f64; 3],
     sigma_mm: [f64; 3],
     error_mm: Option<f64>,
+    /// `sqrt(e^T C^-1 e)`: the error in the hole's own standard deviations.
+    error_sigmas: Option<f64>,
+    /// Its pixel was not used (the pose service found it inconsistent).
+    outlier: bool,
 }
 
 /// The child processes; stopped with SIGTERM (then SIGKILL) however the demo ends.
@@ -315,10 +333,11 @@ fn result_line(poses: &HolePoses, truth: Option<&TruthMsg>, detect_ms: Option<f6
         .iter()
         .enumerate()
         .map(|(k, h)| {
-            let error_mm = truth_holes.map(|t| {
-                let d: f64 = (0..3).map(|j| (h.position_m[j] - t.positions_m[k][j]).powi(2)).sum();
-                d.sqrt() * 1e3
-            });
+            let error =
+                truth_holes.map(|t| nalgebra::Vector3::from(h.position_m) - nalgebra::Vector3::from(t.positions_m[k]));
+            let covariance = nalgebra::Matrix3::from_fn(|r, c| h.covariance_m2[r][c]);
+            let error_sigmas =
+                error.map(|e| covariance.cholesky().map_or(f64::INFINITY, |l| e.dot(&l.solve(&e)).max(0.0).sqrt()));
             HoleLine {
                 kind: match h.kind {
                     outlet_protocol::HoleKind::Power => "power",
@@ -326,28 +345,51 @@ fn result_line(poses: &HolePoses, truth: Option<&TruthMsg>, detect_ms: Option<f6
                 },
                 position_m: h.position_m,
                 sigma_mm: h.std_dev_m().map(|s| s * 1e3),
-                error_mm,
+                error_mm: error.map(|e| e.norm() * 1e3),
+                error_sigmas,
+                outlier: h.outlier,
             }
         })
         .collect();
     let max_error_mm = truth_holes.map(|_| holes.iter().filter_map(|h| h.error_mm).fold(0.0, f64::max));
+    let max_error_sigmas = truth_holes.map(|_| holes.iter().filter_map(|h| h.error_sigmas).fold(0.0, f64::max));
+    let usable = poses.status == PoseStatus::Ok;
+    let false_alarm_reason = match truth {
+        _ if !usable => None,
+        Some(t) if t.hole_count as usize != poses.holes.len() => Some("no_outlet"),
+        _ if max_error_mm.is_some_and(|e| e > FALSE_ALARM_MM) => Some("beyond_3mm"),
+        _ if max_error_sigmas.is_some_and(|e| e > FALSE_ALARM_SIGMAS) => Some("beyond_5sigma"),
+        _ => None,
+    };
     ResultLine {
         frame_id: poses.frame_id,
         mode: poses.mode.as_str(),
+        status: poses.status.as_str(),
         capture_time_ns: ns(poses.capture_time),
         latency_ms: poses.received.duration_since(poses.capture_time).map_or(0.0, |d| d.as_secs_f64() * 1e3),
         published_ms: poses.latency().as_secs_f64() * 1e3,
         detect_ms,
         holes,
         max_error_mm,
-        false_alarm: truth.is_some_and(|t| t.hole_count == 0),
+        max_error_sigmas,
+        false_alarm: false_alarm_reason.is_some(),
+        false_alarm_reason,
     }
 }
 
 fn print_result(r: &ResultLine) {
-    let error = r.max_error_mm.map_or("no truth".into(), |e| format!("max error {e:.3} mm"));
+    let error = match (r.status, r.max_error_mm) {
+        ("ok", Some(e)) => format!("max error {e:.3} mm ({:.1} sigma)", r.max_error_sigmas.unwrap_or(f64::NAN)),
+        ("ok", None) => "no truth".into(),
+        (status, _) => format!("no pose: {status}"),
+    };
     let detect = r.detect_ms.map_or(String::new(), |d| format!(" (detection {d:.1} ms)"));
-    let alarm = if r.false_alarm { "  FALSE ALARM: no outlet in this frame" } else { "" };
+    let alarm = match r.false_alarm_reason {
+        Some("no_outlet") => "  FALSE ALARM: no outlet in this frame",
+        Some("beyond_3mm") => "  FALSE ALARM: a hole more than 3 mm off",
+        Some(_) => "  FALSE ALARM: a hole more than 5 sigma off",
+        None => "",
+    };
     println!(
         "frame {:>6}  {:<5}  {} holes  {}  latency {:.1} ms{}{}",
         r.frame_id,
@@ -371,6 +413,8 @@ struct Summary {
     frames_with_outlet: u64,
     results: u64,
     false_alarms: u64,
+    ambiguous: u64,
+    plane_mismatch: u64,
     errors_mm: Vec<f64>,
     latencies_ms: Vec<f64>,
     latency_over_detection_ms: Vec<f64>,
@@ -382,6 +426,8 @@ impl Summary {
         const KEEP: usize = 100_000;
         self.results += 1;
         self.false_alarms += r.false_alarm as u64;
+        self.ambiguous += (r.status == "ambiguous") as u64;
+        self.plane_mismatch += (r.status == "plane_mismatch") as u64;
         if self.errors_mm.len() < KEEP {
             self.errors_mm.extend(r.holes.iter().filter_map(|h| h.error_mm));
         }
@@ -403,7 +449,8 @@ impl Summary {
         };
         let rms = (self.errors_mm.iter().map(|e| e * e).sum::<f64>() / self.errors_mm.len().max(1) as f64).sqrt();
         eprintln!(
-            "outlet demo: {:.1} s, {} frames ({} with an outlet), {} results, {} false alarms; \
+            "outlet demo: {:.1} s, {} frames ({} with an outlet), {} results, {} false alarms \
+             (a hole beyond 3 mm or 5 sigma, or no outlet), {} without a pose ({} ambiguous, {} plane mismatch); \
              hole error RMS {:.3} mm, p95 {:.3} mm; latency p50 {:.1} ms, p99 {:.1} ms; \
              latency beyond detection p50 {:.2} ms, p99 {:.2} ms",
             seconds,
@@ -411,6 +458,9 @@ impl Summary {
             self.frames_with_outlet,
             self.results,
             self.false_alarms,
+            self.ambiguous + self.plane_mismatch,
+            self.ambiguous,
+            self.plane_mismatch,
             rms,
             q(&mut self.errors_mm, 0.95),
             q(&mut self.latencies_ms, 0.5),

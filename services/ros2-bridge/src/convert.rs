@@ -8,7 +8,7 @@ use crate::msgs::{
 };
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
 use outlet_protocol::CameraModel;
-use outlet_protocol::wire::{FrameHeader, HeartbeatMsg, HolePosesMsg, PixelFormat};
+use outlet_protocol::wire::{FrameHeader, HeartbeatMsg, HolePosesMsg, PixelFormat, pose_status};
 use std::collections::BTreeMap;
 
 const NS_PER_S: u64 = 1_000_000_000;
@@ -56,6 +56,10 @@ pub enum Rejection {
     CloudSize { width: u32, height: u32 },
     #[error("hole poses of frame {frame_id}: {reason}")]
     Poses { frame_id: u64, reason: String },
+    /// A result without a pose (ambiguous, or the plane disagrees): nothing is
+    /// published as a pose; the bridge reports it in /diagnostics.
+    #[error("frame {frame_id}: no pose ({status}), nothing published")]
+    NoPose { frame_id: u64, status: &'static str },
 }
 
 /// A ROS time as nanoseconds since the Unix epoch; None when it is before the
@@ -319,10 +323,17 @@ fn ros_quaternion(q: &UnitQuaternion<f64>) -> Quaternion {
 /// The hole poses of one frame as ROS 2 messages: a PoseArray with one pose per
 /// hole in template order (position the hole's, camera frame, metres;
 /// orientation the outlet's) and a PoseStamped of the outlet; both stamped with
-/// the frame's capture time, in `frame_id`.
+/// the frame's capture time, in `frame_id`. A result without a pose (status
+/// ambiguous or plane mismatch) is [`Rejection::NoPose`]: an arm listening on
+/// ROS is never handed a pose the sidecar cannot vouch for.
 pub fn poses_of(msg: &HolePosesMsg, frame_id: &str) -> Result<(PoseArray, PoseStamped), Rejection> {
     let reject = |reason: String| Rejection::Poses { frame_id: msg.frame_id, reason };
     msg.validate().map_err(|e| reject(e.to_string()))?;
+    match msg.status {
+        pose_status::OK => {}
+        pose_status::AMBIGUOUS => return Err(Rejection::NoPose { frame_id: msg.frame_id, status: "ambiguous" }),
+        _ => return Err(Rejection::NoPose { frame_id: msg.frame_id, status: "plane_mismatch" }),
+    }
     let q = quaternion_of(&msg.rotation).ok_or_else(|| reject(format!("rotation {:?} is not one", msg.rotation)))?;
     if !msg.translation_m.iter().all(|v| v.is_finite()) {
         return Err(reject(format!("translation {:?} is not finite", msg.translation_m)));
@@ -744,6 +755,8 @@ mod tests {
             capture_time_ns: 1_700_000_000_500_000_000,
             published_ns: 0,
             mode: 3,
+            status: 1,
+            outlier_mask: 0,
             reserved: 0,
             rotation: rotation(Vector3::new(0.2, 1.0, 0.1), 0.4),
             translation_m: [0.02, -0.01, 0.5],
@@ -777,6 +790,11 @@ mod tests {
         let mut wrong = hole_poses();
         wrong.rotation[0] = 3.0;
         assert!(matches!(poses_of(&wrong, "f"), Err(Rejection::Poses { frame_id: 42, .. })));
+        // A result without a pose is not published as one.
+        let none = HolePosesMsg { status: pose_status::AMBIGUOUS, hole_count: 0, ..hole_poses() };
+        assert_eq!(poses_of(&none, "f").err(), Some(Rejection::NoPose { frame_id: 42, status: "ambiguous" }));
+        let mismatch = HolePosesMsg { status: pose_status::PLANE_MISMATCH, hole_count: 0, ..hole_poses() };
+        assert!(matches!(poses_of(&mismatch, "f"), Err(Rejection::NoPose { status: "plane_mismatch", .. })));
         let mut nan = hole_poses();
         nan.positions_m[2][1] = f64::NAN;
         assert!(poses_of(&nan, "f").is_err());

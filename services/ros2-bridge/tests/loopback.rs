@@ -108,6 +108,8 @@ fn messages_cross_dds_on_loopback_both_ways() {
         capture_time_ns: 1_700_000_000_000_000_005,
         published_ns: 0,
         mode: 3,
+        status: 1,
+        outlier_mask: 0,
         reserved: 0,
         rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
         translation_m: [0.02, 0.02, 0.5],

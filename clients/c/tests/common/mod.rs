@@ -73,6 +73,8 @@ pub fn poses(frame_id: u64) -> HolePosesMsg {
         capture_time_ns: now_ns() - 30_000_000,
         published_ns: now_ns(),
         mode: 3,
+        status: 1,
+        outlier_mask: 0,
         reserved: 0,
         rotation: [1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0],
         translation_m: [0.0, 0.0, 0.31],

@@ -1,7 +1,9 @@
 //! The pose service: detections ([`service::DETECTIONS`]) joined with the wall
 //! plane closest in time ([`service::PLANES`]) into hole poses
 //! ([`service::HOLE_POSES`]): the `plane` mode with a plane near enough in
-//! time, else `mono`.
+//! time, else `mono`. A plane that cannot explain the holes gives a result
+//! with status `plane_mismatch` and no pose, never a quiet `mono` one; a mono
+//! pose whose mirror explains the pixels as well gives `ambiguous`.
 
 use super::{Output, Runtime, clear};
 use anyhow::Result;
@@ -9,14 +11,24 @@ use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 use nalgebra::{Matrix3, Point2, Unit, Vector3};
 use outlet::health::{Health, now_ns};
-use outlet_pose::{Mode, Observations, OutletPose, PlaneMeasurement, solve_mono, solve_plane};
-use outlet_protocol::wire::{DetectionMsg, HolePosesMsg, MAX_HOLES, SCHEMA_VERSION, WallPlaneMsg, service};
+use outlet_pose::{Mode, Observations, OutletPose, PlaneMeasurement, PoseError, solve_mono, solve_plane};
+use outlet_protocol::wire::{
+    DetectionMsg, HolePosesMsg, MAX_HOLES, SCHEMA_VERSION, WallPlaneMsg, pose_status, service,
+};
 use outlet_protocol::{HoleKind, OutletGeometry, shm};
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 /// Planes kept to join each detection with the one closest in time.
 const RECENT_PLANES: usize = 16;
+/// The kept holes' whitened cost per degree of freedom above which a plane that
+/// leaves more than `max_rms_px` cannot explain the detection: residuals three
+/// times their own sigmas.
+const MAX_VARIANCE_FACTOR: f64 = 9.0;
+/// For this long after start, a detection waits `plane_wait_ms` for a first
+/// plane even though none has come yet: the normal estimator may start later
+/// than the detector, and a mono pose then is one the plane would have bettered.
+const STARTUP_GRACE: Duration = Duration::from_secs(5);
 
 pub fn run(rt: &Runtime) -> Result<()> {
     let config = &rt.config.pose;
@@ -40,6 +52,7 @@ pub fn run(rt: &Runtime) -> Result<()> {
     // Detections waiting for the plane of their frame, with when they arrived.
     let mut pending: VecDeque<(DetectionMsg, Instant)> = VecDeque::new();
     let mut last_plane: Option<Instant> = None;
+    let service_started = Instant::now();
     let plane_wait = Duration::from_secs_f64(config.plane_wait_ms / 1e3);
     let mut health = Health::new(rt.name);
     tracing::info!("pose service ready ({})", config.template);
@@ -47,8 +60,8 @@ pub fn run(rt: &Runtime) -> Result<()> {
         let started = Instant::now();
         match solve(d, &geometry, recent, config) {
             Ok(None) => {} // no outlet in that frame
-            Ok(Some(pose)) => {
-                if output.send(poses_msg(d, &geometry, &pose)) {
+            Ok(Some(outcome)) => {
+                if output.send(poses_msg(d, &geometry, &outcome)) {
                     health.output(d.capture_time_ns, started.elapsed().as_secs_f64() * 1e3);
                 }
             }
@@ -99,7 +112,8 @@ pub fn run(rt: &Runtime) -> Result<()> {
         }
         // A detection goes out once the plane of its moment is in (a plane as
         // late or later), when planes stopped coming, or after `plane_wait`.
-        let planes_flowing = last_plane.is_some_and(|t| t.elapsed().as_secs_f64() * 1e3 < config.max_plane_age_ms);
+        let planes_flowing = last_plane.is_some_and(|t| t.elapsed().as_secs_f64() * 1e3 < config.max_plane_age_ms)
+            || (last_plane.is_none() && service_started.elapsed() < STARTUP_GRACE);
         while let Some((d, at)) = pending.front() {
             let plane_in = recent.iter().any(|p| p.capture_time_ns >= d.capture_time_ns);
             if d.hole_count == 0 || plane_in || !planes_flowing || at.elapsed() >= plane_wait {
@@ -114,13 +128,21 @@ pub fn run(rt: &Runtime) -> Result<()> {
     Ok(())
 }
 
+/// What the pose service says about one detection.
+enum Outcome {
+    /// A pose to act on.
+    Pose(OutletPose),
+    /// No pose, and why (`pose_status`), with the mode that was tried.
+    Refused { mode: Mode, status: u32 },
+}
+
 /// The pose of the outlet a detection found; None when it found none.
 fn solve(
     d: &DetectionMsg,
     geometry: &OutletGeometry,
     recent: &VecDeque<WallPlaneMsg>,
     config: &outlet::config::PoseConfig,
-) -> Result<Option<OutletPose>, String> {
+) -> Result<Option<Outcome>, String> {
     if d.schema_version != SCHEMA_VERSION {
         return Err(format!("detection {}: schema {} (this build: {SCHEMA_VERSION})", d.frame_id, d.schema_version));
     }
@@ -138,19 +160,23 @@ fn solve(
     }
     let camera = d.camera().map_err(|e| format!("detection {}: {e}", d.frame_id))?;
     let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
-    let pixels: Vec<Point2<f64>> = d.holes[..model.len()].iter().map(|h| Point2::new(h.pixel[0], h.pixel[1])).collect();
+    let holes = &d.holes[..model.len()];
+    let pixels: Vec<Point2<f64>> = holes.iter().map(|h| Point2::new(h.pixel[0], h.pixel[1])).collect();
+    // Each hole's own sigma from the detector's fit (the configured one where it has none).
+    let sigmas: Vec<f64> = holes.iter().map(|h| h.sigma_px).collect();
     let obs = Observations {
         model_mm: &model,
         pixels: &pixels,
         camera: &camera,
         pixel_sigma: config.pixel_sigma,
-        pixel_sigmas: None,
+        pixel_sigmas: Some(&sigmas),
     };
     let plane = recent
         .iter()
         .min_by_key(|p| p.capture_time_ns.abs_diff(d.capture_time_ns))
         .filter(|p| (p.capture_time_ns.abs_diff(d.capture_time_ns) as f64) / 1e6 <= config.max_plane_age_ms);
-    let solved = match plane {
+    let refused = |mode, status| Ok(Some(Outcome::Refused { mode, status }));
+    match plane {
         Some(p) => {
             let measurement = PlaneMeasurement {
                 normal: Unit::new_normalize(Vector3::from(p.normal)),
@@ -160,45 +186,84 @@ fn solve(
                 face_offset_m: geometry.face_offset_mm / 1000.0,
             };
             match solve_plane(&obs, &measurement) {
-                // A plane of another wall (or a wrong stereo fit) cannot explain the holes.
-                Ok(pose) if pose.rms_px > config.max_rms_px => {
+                // Pixels off by more than max_rms_px count against the plane only
+                // where their own sigmas do not explain them (a hole the detector
+                // knows it placed poorly carries a large sigma_px).
+                Ok(pose) if pose.rms_px <= config.max_rms_px || pose.variance_factor <= MAX_VARIANCE_FACTOR => {
+                    Ok(Some(Outcome::Pose(pose)))
+                }
+                // A plane of another wall, a wrong stereo fit or a wrong hole: the
+                // plane and the pixels disagree. Mono would hide it (the demo's
+                // frame 185 went 31 mm wrong that way): say so instead.
+                Ok(pose) => {
                     tracing::warn!(
                         frame = d.frame_id,
                         plane_frame = p.frame_id,
-                        "the plane leaves {:.1} px RMS: mono instead",
+                        outliers = ?pose.outliers,
+                        "the plane leaves {:.1} px RMS: no pose (plane_mismatch)",
                         pose.rms_px
                     );
-                    solve_mono(&obs)
+                    refused(Mode::Plane, pose_status::PLANE_MISMATCH)
                 }
-                other => other,
+                Err(e @ (PoseError::BehindCamera | PoseError::GrazingNormal { .. } | PoseError::BadPlane)) => {
+                    tracing::warn!(frame = d.frame_id, plane_frame = p.frame_id, "{e}: no pose (plane_mismatch)");
+                    refused(Mode::Plane, pose_status::PLANE_MISMATCH)
+                }
+                Err(e) => Err(format!("detection {}: {e}", d.frame_id)),
             }
         }
-        None => solve_mono(&obs),
-    };
-    solved.map(Some).map_err(|e| format!("detection {}: {e}", d.frame_id))
+        None => match solve_mono(&obs) {
+            Ok(pose) => Ok(Some(Outcome::Pose(pose))),
+            Err(e @ PoseError::Ambiguous { .. }) => {
+                tracing::info!(frame = d.frame_id, "{e}");
+                refused(Mode::Mono, pose_status::AMBIGUOUS)
+            }
+            Err(e) => Err(format!("detection {}: {e}", d.frame_id)),
+        },
+    }
 }
 
-fn poses_msg(d: &DetectionMsg, geometry: &OutletGeometry, pose: &OutletPose) -> HolePosesMsg {
-    let r = pose.pose.rotation.to_rotation_matrix();
-    let t = pose.pose.translation.vector;
+fn mode_code(mode: Mode) -> u32 {
+    match mode {
+        Mode::Mono => 1,
+        Mode::Normal => 2,
+        Mode::Plane => 3,
+    }
+}
+
+fn poses_msg(d: &DetectionMsg, geometry: &OutletGeometry, outcome: &Outcome) -> HolePosesMsg {
     let mut msg = HolePosesMsg {
         schema_version: SCHEMA_VERSION,
-        hole_count: pose.holes_cam_m.len().min(MAX_HOLES) as u32,
+        hole_count: 0,
         frame_id: d.frame_id,
         capture_time_ns: d.capture_time_ns,
         published_ns: now_ns(),
-        mode: match pose.mode {
-            Mode::Mono => 1,
-            Mode::Normal => 2,
-            Mode::Plane => 3,
-        },
+        mode: 0,
+        status: 0,
+        outlier_mask: 0,
         reserved: 0,
-        rotation: std::array::from_fn(|k| r[(k / 3, k % 3)]),
-        translation_m: [t.x, t.y, t.z],
+        rotation: [f64::NAN; 9],
+        translation_m: [f64::NAN; 3],
         kinds: [0; MAX_HOLES],
         positions_m: [[0.0; 3]; MAX_HOLES],
         covariances_m2: [[0.0; 9]; MAX_HOLES],
     };
+    let pose = match outcome {
+        Outcome::Refused { mode, status } => {
+            msg.mode = mode_code(*mode);
+            msg.status = *status;
+            return msg;
+        }
+        Outcome::Pose(pose) => pose,
+    };
+    let r = pose.pose.rotation.to_rotation_matrix();
+    let t = pose.pose.translation.vector;
+    msg.mode = mode_code(pose.mode);
+    msg.status = pose_status::OK;
+    msg.hole_count = pose.holes_cam_m.len().min(MAX_HOLES) as u32;
+    msg.rotation = std::array::from_fn(|k| r[(k / 3, k % 3)]);
+    msg.translation_m = [t.x, t.y, t.z];
+    msg.outlier_mask = pose.outliers.iter().filter(|k| **k < 32).fold(0, |m, k| m | (1u32 << k));
     for (k, ((h, c), hole)) in
         pose.holes_cam_m.iter().zip(&pose.covariances).zip(&geometry.holes).take(MAX_HOLES).enumerate()
     {
