@@ -4,8 +4,9 @@
 
 use crate::candidates::{CandidateParams, find_candidates};
 use crate::hashing::{HashParams, HashTable, find_outlet};
-use crate::refine::{HoleShape, RefineParams, Refined, refine_hole};
+use crate::refine::{HoleShape, RefineParams, Refined, outline_at, refine_hole};
 use crate::template::Template;
+use crate::verify::{VerifyParams, hole_score, identity_gain};
 use crate::{Candidate, Class, grey_of};
 use image::{GrayImage, RgbImage};
 use nalgebra::{Matrix2, Matrix3, Point2, Vector2};
@@ -18,6 +19,7 @@ pub struct DetectorParams {
     pub candidates: CandidateParams,
     pub hash: HashParams,
     pub refine: RefineParams,
+    pub verify: VerifyParams,
     /// Candidates classified at most (the most contrasted first).
     pub max_candidates: usize,
     /// From this image side (pixels) on, candidates need at least
@@ -46,6 +48,7 @@ impl Default for DetectorParams {
             candidates: CandidateParams::high_recall(),
             hash: HashParams::default(),
             refine: RefineParams::default(),
+            verify: VerifyParams::default(),
             max_candidates: 400,
             large_image_px: 1000,
             large_image_min_contrast: 1.3,
@@ -63,11 +66,13 @@ pub struct DetectedHole {
     pub kind: HoleKind,
     /// In the image as captured (distorted), OpenCV convention.
     pub pixel: Point2<f64>,
-    /// Whether the sub-pixel fit found this hole (otherwise its place is predicted
-    /// from the other holes).
+    /// Whether the sub-pixel fit placed this hole's centre. False where the fit
+    /// could not (a faint or crowded hole), but the hole's outline was seen right
+    /// where the other holes' homography puts it, which gives the centre; a hole
+    /// not seen at all refuses the outlet ([`crate::verify`]).
     pub refined: bool,
     /// Evidence in 0..1 that the hole was seen where the outlet's homography puts
-    /// it, with the predicted outline (the outlet's verification in `detect.rs`); 0 when not seen.
+    /// it, with the predicted outline ([`crate::verify::hole_score`]).
     pub score: f64,
     /// Standard deviation of `pixel` per axis (pixels), from the outline fit's
     /// residuals ([`crate::refine::Refined::sigma_px`]).
@@ -107,6 +112,10 @@ pub struct DetectReport {
     /// Every candidate with its class.
     pub candidates: Vec<(Candidate, Class)>,
     pub times: StageTimes,
+    /// Why an outlet that geometric hashing found was not reported (a hole not
+    /// seen, off the plane, the ground holes or the outlines against its
+    /// reading); `None` when one was reported or hashing found none.
+    pub rejected: Option<String>,
 }
 
 /// A template ready to detect with.
@@ -178,7 +187,7 @@ impl Detector {
             hash.scale_range = Some([f / 700.0 * 0.5f64.sqrt(), f / 150.0]);
         }
         let lens = Lens { camera };
-        let mut detection = self.search(grey, &lens, &classified, &hash, &mut times);
+        let (mut detection, mut rejected) = self.search(grey, &lens, &classified, &hash, &mut times);
         if detection.is_none() && self.params.second_look_margin > 0.0 {
             // A second look: candidates the descriptor put only narrowly in the
             // background (shadowed or washed-out holes) count as their nearer hole
@@ -203,13 +212,19 @@ impl Detector {
                 })
                 .collect();
             if relaxed.iter().zip(&classified).any(|(a, b)| a.1 != b.1) {
-                detection = self.search(grey, &lens, &relaxed, &hash, &mut times);
+                let (second, why) = self.search(grey, &lens, &relaxed, &hash, &mut times);
+                detection = second;
+                rejected = why.or(rejected);
             }
         }
-        DetectReport { detection, candidates: classified, times }
+        if detection.is_some() {
+            rejected = None;
+        }
+        DetectReport { detection, candidates: classified, times, rejected }
     }
 
-    /// Hashing over the hole-classed candidates, then refinement.
+    /// Hashing over the hole-classed candidates, then refinement and
+    /// verification: the outlet, or why the one hashing found was refused.
     fn search(
         &self,
         grey: &GrayImage,
@@ -217,7 +232,7 @@ impl Detector {
         classified: &[(Candidate, Class)],
         hash: &HashParams,
         times: &mut StageTimes,
-    ) -> Option<Detection> {
+    ) -> (Option<Detection>, Option<String>) {
         let t = Instant::now();
         let holes: Vec<&(Candidate, Class)> =
             classified.iter().filter(|(_, class)| *class != Class::Background).collect();
@@ -226,26 +241,34 @@ impl Detector {
         let sizes: Vec<f64> = holes.iter().map(|(c, _)| c.size[0].max(c.size[1]) as f64).collect();
         let found = find_outlet(&self.table, &points, &classes, &sizes, hash);
         times.hash += ms_since(t);
+        let Some(m) = found else { return (None, None) };
         let t = Instant::now();
-        let detection = found.and_then(|m| {
-            let guesses: Vec<Option<Point2<f64>>> =
-                m.assignment.iter().map(|a| a.and_then(|k| holes.get(k).map(|(c, _)| c.centre))).collect();
-            self.refine(grey, lens, &m.transform, &guesses, m.score).or_else(|| {
-                // Hashing leaves a duplex's two readings of the same power holes
-                // to the image: the half-turned one, if its ground holes say so.
-                let (c, image) = self.table.half_turn()?;
-                let turn = Matrix3::new(-1.0, 0.0, 2.0 * c.x, 0.0, -1.0, 2.0 * c.y, 0.0, 0.0, 1.0);
-                let turned: Vec<Option<Point2<f64>>> =
-                    image.iter().map(|k| k.and_then(|k| guesses.get(k).copied().flatten())).collect();
-                self.refine(grey, lens, &(m.transform * turn), &turned, m.score)
-            })
+        let guesses: Vec<Option<Point2<f64>>> =
+            m.assignment.iter().map(|a| a.and_then(|k| holes.get(k).map(|(c, _)| c.centre))).collect();
+        let result = self.refine(grey, lens, &m.transform, &guesses, m.score).or_else(|why| {
+            // Hashing leaves a duplex's two readings of the same power holes
+            // to the image: the half-turned one, if its ground holes say so.
+            let Some((c, image)) = self.table.half_turn() else { return Err(why) };
+            let turn = Matrix3::new(-1.0, 0.0, 2.0 * c.x, 0.0, -1.0, 2.0 * c.y, 0.0, 0.0, 1.0);
+            let turned: Vec<Option<Point2<f64>>> =
+                image.iter().map(|k| k.and_then(|k| guesses.get(k).copied().flatten())).collect();
+            self.refine(grey, lens, &(m.transform * turn), &turned, m.score)
+                .map_err(|turned_why| format!("{why}; half-turned: {turned_why}"))
         });
         times.refine += ms_since(t);
-        detection
+        match result {
+            Ok(d) => (Some(d), None),
+            Err(why) => {
+                tracing::debug!(reason = %why, "outlet refused by verification");
+                (None, Some(why))
+            }
+        }
     }
 
-    /// Refines every hole from the hashing's homography, then checks that the
-    /// refined holes lie on one plane's homography.
+    /// Refines every hole from the hashing's homography, then verifies the
+    /// outlet: every hole seen on one plane's homography, not mirrored, ground
+    /// holes where they should be, and outlines that tell its reading from the
+    /// swapped one. `Err` says which check refused it.
     fn refine(
         &self,
         grey: &GrayImage,
@@ -253,19 +276,22 @@ impl Detector {
         homography: &Matrix3<f64>,
         guesses: &[Option<Point2<f64>>],
         score: usize,
-    ) -> Option<Detection> {
+    ) -> Result<Detection, String> {
         let model: Vec<Point2<f64>> = self.template.geometry.holes.iter().map(|h| h.position()).collect();
         let mut fits: Vec<Option<Refined>> = Vec::with_capacity(model.len());
+        let mut jacobians: Vec<Matrix2<f64>> = Vec::with_capacity(model.len());
+        let degenerate = || "the homography maps a hole to infinity".to_string();
         for (i, t) in model.iter().enumerate() {
-            let predicted = lens.distort(apply(homography, t)?);
+            let predicted = lens.distort(apply(homography, t).ok_or_else(degenerate)?);
             // The candidate's own centre where it is close to the prediction.
             let guess = match guesses.get(i).copied().flatten() {
                 Some(g) if (g - predicted).norm() < 3.0 => g,
                 _ => predicted,
             };
-            let jacobian = local_jacobian(homography, lens, t)?;
+            let jacobian = local_jacobian(homography, lens, t).ok_or_else(degenerate)?;
             let fit = refine_hole(grey, guess, &jacobian, self.outlines[i], &self.params.refine);
             fits.push(fit);
+            jacobians.push(jacobian);
         }
         let mut refined: Vec<Option<Point2<f64>>> = fits.iter().map(|f| f.map(|r| r.centre)).collect();
         // The refined holes must lie where one plane puts them. Holes that do not
@@ -273,16 +299,15 @@ impl Detector {
         // first; the outlet stands only if enough holes remain.
         let min_holes = self.params.hash.min_score(model.len()).max(4);
         // Pixels per mm along the outlet's least foreshortened direction.
-        let scale = local_jacobian(homography, lens, &centroid(&model))?.singular_values().max();
+        let scale = local_jacobian(homography, lens, &centroid(&model)).ok_or_else(degenerate)?.singular_values().max();
         let tolerance = self.params.max_plane_px.max(self.params.max_plane_mm * scale);
         let h = loop {
             let pairs: Vec<(Point2<f64>, Point2<f64>)> =
                 model.iter().zip(&refined).filter_map(|(t, r)| r.map(|r| (*t, lens.undistort(r)))).collect();
             if pairs.len() < min_holes {
-                tracing::debug!(holes = pairs.len(), "too few holes lie on one plane: no outlet");
-                return None;
+                return Err(format!("only {} holes lie on one plane", pairs.len()));
             }
-            let h = fit_homography(&pairs)?;
+            let h = fit_homography(&pairs).ok_or("no homography through the refined holes")?;
             let worst = model
                 .iter()
                 .zip(&refined)
@@ -300,27 +325,78 @@ impl Detector {
                 _ => break h,
             }
         };
-        let holes = model
-            .iter()
-            .zip(&refined)
-            .zip(&fits)
-            .zip(&self.template.geometry.holes)
-            .map(|(((t, r), fit), hole)| {
-                let pixel = match r {
-                    Some(p) => Some(*p),
-                    None => apply(&h, t).map(|q| lens.distort(q)),
-                };
-                let (score, sigma_px) = match (r, fit) {
-                    (Some(_), Some(f)) => (f.explained, f.sigma_px),
-                    _ => (0.0, self.params.refine.max_shift_px),
-                };
-                pixel.map(|pixel| DetectedHole { kind: hole.kind, pixel, refined: r.is_some(), score, sigma_px })
-            })
-            .collect::<Option<Vec<_>>>()?;
-        if !self.ground_holes_are_where_they_should_be(grey, lens, &h) {
-            return None;
+        // A hole not found (faint: washed out, in shadow; or its first guess too
+        // far off) is looked for once more where the seen holes' homography puts
+        // it, with less contrast; it counts only if it lands on that plane too.
+        // Failing that, its outline is checked right at that place: an opening of
+        // its shape there is a hole seen, whose centre is the homography's
+        // (`refined` false, a larger sigma); none there refuses the outlet below.
+        let faint = RefineParams { min_relative_contrast: self.params.verify.faint_contrast, ..self.params.refine };
+        let mut predicted_only = vec![false; model.len()];
+        for (i, t) in model.iter().enumerate() {
+            if refined[i].is_some() {
+                continue;
+            }
+            let Some(q) = apply(&h, t) else { continue };
+            let predicted = lens.distort(q);
+            let Some(jacobian) = local_jacobian(&h, lens, t) else { continue };
+            let moved = refine_hole(grey, predicted, &jacobian, self.outlines[i], &faint)
+                .filter(|fit| (q - lens.undistort(fit.centre)).norm() <= tolerance);
+            let (centre, fit) = match moved {
+                Some(fit) => (fit.centre, Some(fit)),
+                None => {
+                    predicted_only[i] = true;
+                    (predicted, outline_at(grey, predicted, &jacobian, self.outlines[i], &faint))
+                }
+            };
+            if let Some(fit) = fit {
+                tracing::debug!(hole = i, predicted_only = predicted_only[i], "hole seen where the other holes put it");
+                refined[i] = Some(centre);
+                fits[i] = Some(Refined { sigma_px: fit.sigma_px.max(tolerance / 2.0), ..fit });
+                jacobians[i] = jacobian;
+            }
         }
-        Some(Detection { holes, score, homography: h })
+        // Every hole must have been seen: a hole predicted from the others may lie
+        // on the bare plate (the arm would go there), so the outlet is refused.
+        let mut holes = Vec::with_capacity(model.len());
+        for (i, ((t, r), hole)) in model.iter().zip(&refined).zip(&self.template.geometry.holes).enumerate() {
+            let kind = hole.kind.as_str();
+            let (Some(pixel), Some(fit)) = (r, fits[i]) else {
+                return Err(match fits[i] {
+                    None => format!("hole {i} ({kind}): no opening of its outline found where the homography puts it"),
+                    Some(_) => format!("hole {i} ({kind}): its opening is off the outlet's plane"),
+                });
+            };
+            let predicted = apply(&h, t).map(|q| lens.distort(q)).ok_or_else(degenerate)?;
+            let offset = (pixel - predicted).norm();
+            if fit.explained < self.params.verify.min_explained {
+                return Err(format!("hole {i} ({kind}): its outline explains only {:.2} of the pixels", fit.explained));
+            }
+            // A centre taken from the homography is weaker evidence than a fitted one.
+            let score = hole_score(&fit, offset, tolerance) * if predicted_only[i] { 0.5 } else { 1.0 };
+            let refined = !predicted_only[i];
+            holes.push(DetectedHole { kind: hole.kind, pixel: *pixel, refined, score, sigma_px: fit.sigma_px });
+        }
+        // Never a mirror image: the camera sees the outlet's front.
+        let det = local_jacobian(&h, lens, &centroid(&model)).ok_or_else(degenerate)?.determinant();
+        if det.is_nan() || det <= 0.0 {
+            return Err("the refined holes read as a mirror image".to_string());
+        }
+        if !self.ground_holes_are_where_they_should_be(grey, lens, &h) {
+            return Err("the ground holes are no darker than where a half turn would put them".to_string());
+        }
+        // The outlines decide the reading against its mirror and half turn.
+        let seen: Vec<(Point2<f64>, Matrix2<f64>, HoleShape)> =
+            holes.iter().zip(&jacobians).zip(&self.outlines).map(|((d, j), o)| (d.pixel, *j, *o)).collect();
+        if let Some(gain) = identity_gain(grey, &seen, &self.outlines, &self.params.refine) {
+            tracing::debug!(gain, "outlines against the swapped reading");
+            if gain.is_nan() || gain < self.params.verify.min_identity_gain {
+                return Err(format!(
+                    "the slot outlines fit the swapped reading (neutral and hot exchanged) about as well: gain {gain:.3}"
+                ));
+            }
+        }
+        Ok(Detection { holes, score, homography: h })
     }
 
     /// An outlet whose power holes map onto themselves under a half turn (every

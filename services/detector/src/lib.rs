@@ -9,6 +9,7 @@ pub mod detect;
 pub mod hashing;
 pub mod refine;
 pub mod template;
+pub mod verify;
 
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};

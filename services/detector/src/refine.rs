@@ -119,6 +119,8 @@ pub struct Refined {
     pub explained: f64,
     /// Pixels in the fit.
     pub pixels: usize,
+    /// Sum of squared deviations of the window's grey levels from their mean.
+    pub total_ss: f64,
 }
 
 /// Fits one hole's outline around `guess`. `mm_to_px` maps outlet-plane mm offsets
@@ -135,9 +137,50 @@ pub fn refine_hole(
     // First converge with plain least squares (robust weights would ignore the
     // very pixels that pull the outline into place), then re-centre the window and
     // let Huber weights discount what the outline does not explain.
-    let rough = fit(grey, guess, mm_to_px, shape, params, false)?;
-    let fine = fit(grey, rough.centre, mm_to_px, shape, params, true)?;
+    let window = shape.half_extent();
+    let rough = fit(grey, guess, mm_to_px, shape, params, false, window)?;
+    let fine = fit(grey, rough.centre, mm_to_px, shape, params, true, window)?;
     if (fine.centre - guess).norm() > params.max_shift_px { None } else { Some(fine) }
+}
+
+/// The outline evaluated where it is put, without moving it: whether a dark
+/// opening of that shape is at `centre` (contrast, explained share, residual).
+/// `None` as for [`refine_hole`].
+pub fn outline_at(
+    grey: &GrayImage,
+    centre: Point2<f64>,
+    mm_to_px: &Matrix2<f64>,
+    shape: HoleShape,
+    params: &RefineParams,
+) -> Option<Refined> {
+    let fixed = RefineParams { iterations: 0, ..*params };
+    fit(grey, centre, mm_to_px, shape, &fixed, true, shape.half_extent())
+}
+
+/// How much better a hole's own outline explains the pixels than another one
+/// would: both are fitted from `centre` over the same pixels (a window around
+/// the larger of the two), and the result is (SSE of `other` - SSE of `own`) and
+/// SSE of `own` (grey levels squared). `other_map` is the other outline's mm to
+/// pixel map: `-mm_to_px` turns it by half a turn (a ground hole's flat away from
+/// the slots). `None` where either fit fails; a fit that finds no opening counts
+/// as the worst.
+pub fn compare_outlines(
+    grey: &GrayImage,
+    centre: Point2<f64>,
+    mm_to_px: &Matrix2<f64>,
+    own: HoleShape,
+    other: (HoleShape, Matrix2<f64>),
+    params: &RefineParams,
+) -> Option<[f64; 2]> {
+    let [a, b] = [own.half_extent(), other.0.half_extent()];
+    let window = [a[0].max(b[0]), a[1].max(b[1])];
+    let sse = |r: &Refined| r.rms * r.rms * r.pixels as f64;
+    let mine = fit(grey, centre, mm_to_px, own, params, true, window)?;
+    let theirs = fit(grey, centre, &other.1, other.0, params, true, window);
+    // The other outline finding no dark opening at all is evidence for this one:
+    // it counts as explaining nothing beyond the window's mean.
+    let theirs = theirs.map_or(mine.total_ss, |r| sse(&r));
+    Some([theirs - sse(&mine), sse(&mine)])
 }
 
 fn fit(
@@ -147,9 +190,10 @@ fn fit(
     shape: HoleShape,
     params: &RefineParams,
     robust: bool,
+    window_mm: [f64; 2],
 ) -> Option<Refined> {
     let px_to_mm = mm_to_px.try_inverse()?;
-    let [ex, ey] = shape.half_extent();
+    let [ex, ey] = window_mm;
     let (ex, ey) = (ex + params.margin_mm, ey + params.margin_mm);
     // Pixel window covering the outline plus margin, wherever it is turned.
     let corners = [[-ex, -ey], [ex, -ey], [-ex, ey], [ex, ey]].map(|[x, y]| mm_to_px * Vector2::new(x, y));
@@ -284,5 +328,5 @@ fn fit(
     {
         return None;
     }
-    Some(Refined { centre: guess + t, rms, contrast, sigma_px, explained, pixels: pixels.len() })
+    Some(Refined { centre: guess + t, rms, contrast, sigma_px, explained, pixels: pixels.len(), total_ss: total })
 }
