@@ -162,8 +162,12 @@ impl Config {
         if !(sim.rate_hz > 0.0 && sim.rate_hz <= 1000.0) {
             bail!("key `sim_camera.rate_hz`: {} is not in (0, 1000]", sim.rate_hz);
         }
-        if !outlet_sim::SCENARIOS.contains(&sim.scenario.as_str()) {
-            bail!("key `sim_camera.scenario`: {:?} is not one of {}", sim.scenario, outlet_sim::SCENARIOS.join(", "));
+        if outlet_sim::scenario_named(&sim.scenario).is_none() {
+            bail!(
+                "key `sim_camera.scenario`: {:?} is not one of {} (or rs_NAME, realistic stereo)",
+                sim.scenario,
+                outlet_sim::SCENARIOS.join(", ")
+            );
         }
         if !(64..=4096).contains(&sim.width) || !(48..=4096).contains(&sim.height) {
             bail!("keys `sim_camera.width`/`height`: {}x{} is not a camera size", sim.width, sim.height);

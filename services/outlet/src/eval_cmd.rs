@@ -119,14 +119,16 @@ pub fn eval(args: EvalArgs) -> Result<()> {
         });
     }
     let camera = args.camera.camera()?;
-    let scenarios: Vec<&str> =
-        if args.scenario == "all" {
-            SCENARIOS.to_vec()
-        } else {
-            vec![SCENARIOS.iter().copied().find(|s| *s == args.scenario).with_context(|| {
-                format!("unknown scenario {:?}; known: all, {}", args.scenario, SCENARIOS.join(", "))
-            })?]
-        };
+    let scenarios: Vec<&str> = match args.scenario.as_str() {
+        "all" => SCENARIOS.to_vec(),
+        "realistic" => outlet_sim::REALISTIC_SCENARIOS.to_vec(),
+        name => vec![outlet_sim::scenario_named(name).with_context(|| {
+            format!(
+                "unknown scenario {name:?}; known: all, realistic, {}, each also as rs_NAME (realistic stereo)",
+                SCENARIOS.join(", ")
+            )
+        })?],
+    };
     let t0 = std::time::Instant::now();
     let mut detectors = HashMap::new();
     for name in ["2x1", "2x2"] {

@@ -120,12 +120,17 @@ pub fn encode_png(image: &RgbImage, path: &Path) -> std::io::Result<()> {
 }
 
 fn scenarios_of(name: &str) -> Result<Vec<&'static str>> {
-    if name == "all" {
-        return Ok(SCENARIOS.to_vec());
+    match name {
+        "all" => return Ok(SCENARIOS.to_vec()),
+        "realistic" => return Ok(outlet_sim::REALISTIC_SCENARIOS.to_vec()),
+        _ => {}
     }
-    match SCENARIOS.iter().find(|s| **s == name) {
-        Some(s) => Ok(vec![*s]),
-        None => bail!("unknown scenario {name:?}; known: all, {}", SCENARIOS.join(", ")),
+    match outlet_sim::scenario_named(name) {
+        Some(s) => Ok(vec![s]),
+        None => bail!(
+            "unknown scenario {name:?}; known: all, realistic, {}, each also as rs_NAME (realistic stereo)",
+            SCENARIOS.join(", ")
+        ),
     }
 }
 

@@ -1,10 +1,13 @@
 //! The stereo point cloud of the scene as a stereo camera sees it: depth noise
 //! growing with distance squared, outliers, blobs without stereo (NaN), and the
-//! plate and faces standing proud of the wall.
+//! plate and faces standing proud of the wall. A realistic model
+//! ([`crate::scene::StereoModel::realistic`]) adds what real pairs do: sparse
+//! points, noise proportional to range, few points on the plate, none over the
+//! outlet, and a calibration bias.
 
 use crate::render::{Prepared, Ray, UndistortGrid};
 use crate::rng::SimRng;
-use crate::scene::{Insert, Scene, WALL_Z_MM};
+use crate::scene::{Insert, Scene};
 use crate::shapes::{Opening, box_sd, face_sd};
 use nalgebra::Point3;
 
@@ -18,7 +21,7 @@ impl Prepared<'_> {
                 let p = ray.at(z);
                 [p[0] - c[0], p[1] - c[1]]
             };
-            let zt = plate.top_z();
+            let zt = plate.top_z(scene.wall_z_mm);
             if let Insert::Receptacles(faces) = &plate.insert {
                 let (q0, qt) = (local(0.0), local(zt));
                 for face in faces {
@@ -39,10 +42,10 @@ impl Prepared<'_> {
             if q[0].abs() <= thx && q[1].abs() <= thy {
                 return Some(zt);
             }
-            let qw = local(WALL_Z_MM);
+            let qw = local(scene.wall_z_mm);
             if qw[0].abs() <= plate.size[0] / 2.0 && qw[1].abs() <= plate.size[1] / 2.0 {
                 // On the bevel: height falls linearly from the top's edge to the wall.
-                let (mut lo, mut hi) = (zt, WALL_Z_MM);
+                let (mut lo, mut hi) = (zt, scene.wall_z_mm);
                 for _ in 0..8 {
                     let mid = 0.5 * (lo + hi);
                     let p = local(mid);
@@ -53,7 +56,7 @@ impl Prepared<'_> {
                 return Some(0.5 * (lo + hi));
             }
         }
-        Some(WALL_Z_MM)
+        Some(scene.wall_z_mm)
     }
 }
 
@@ -79,6 +82,9 @@ pub(crate) fn stereo_cloud_with(scene: &Scene, prepared: &Prepared, grid: &Undis
         blobs.push((rng.range(0.0, w as f64), rng.range(0.0, h as f64), a, b));
         covered += std::f64::consts::PI * a * b;
     }
+    // Draws of the realistic model come from a stream of their own, so that the
+    // default model's cloud stays the same to the byte.
+    let mut real = SimRng::new(scene.noise_seed ^ 0x5EED_C10D);
     let focal = scene.camera.fx;
     let noise_scale = model.disparity_sigma_px / (focal * model.baseline_m);
     let mut points = Vec::with_capacity(w.div_ceil(step) * h.div_ceil(step));
@@ -106,16 +112,45 @@ pub(crate) fn stereo_cloud_with(scene: &Scene, prepared: &Prepared, grid: &Undis
                 continue;
             };
             let p = ray.at(z_mm);
+            let raised = z_mm < scene.wall_z_mm - 0.5;
+            if (raised && model.raised_keep < 1.0 && real.unit() > model.raised_keep)
+                || model.outlet_dropout_mm.is_some_and(|r| p[0].hypot(p[1]) < r)
+            {
+                points.push(nan);
+                continue;
+            }
             let cam = scene.pose * Point3::new(p[0] / 1000.0, p[1] / 1000.0, z_mm / 1000.0);
             let z = cam.z;
-            let scale = if outlier < model.outlier_fraction {
+            let mut scale = if outlier < model.outlier_fraction {
                 0.5 + outlier / model.outlier_fraction
             } else {
                 1.0 + noise * noise_scale * z
             };
-            let q = cam.coords * scale;
+            if model.range_sigma_fraction > 0.0 {
+                scale *= 1.0 + model.range_sigma_fraction * real.normal();
+            }
+            let q = model.bias * Point3::from(cam.coords * scale);
             points.push([q.x as f32, q.y as f32, q.z as f32]);
         }
     }
+    if let Some(keep) = model.max_points {
+        thin_out(&mut points, keep, &mut real);
+    }
     points
+}
+
+/// Keeps `keep` of the valid points, each subset equally likely (selection
+/// sampling), and makes the others NaN.
+fn thin_out(points: &mut [[f32; 3]], keep: usize, rng: &mut SimRng) {
+    let valid = points.iter().filter(|p| p[0].is_finite()).count();
+    let (mut seen, mut kept) = (0usize, 0usize);
+    for p in points.iter_mut().filter(|p| p[0].is_finite()) {
+        let wanted = keep.saturating_sub(kept) as f64;
+        if rng.unit() * ((valid - seen) as f64) < wanted {
+            kept += 1;
+        } else {
+            *p = [f32::NAN; 3];
+        }
+        seen += 1;
+    }
 }

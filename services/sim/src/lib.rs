@@ -18,7 +18,9 @@ pub mod truth;
 
 pub use cloud::stereo_cloud;
 pub use render::{Frame, render};
-pub use scenario::{SCENARIOS, ScenarioError, paper_count, sample_scene};
+pub use scenario::{
+    REALISTIC_SCENARIOS, REALISTIC_STEREO_PREFIX, SCENARIOS, ScenarioError, paper_count, sample_scene, scenario_named,
+};
 pub use scene::Scene;
 pub use truth::ground_truth;
 

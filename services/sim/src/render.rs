@@ -7,7 +7,7 @@
 //! near, else with 3x3 samples. That keeps a 640x480 frame in a few milliseconds.
 
 use crate::rng::SimRng;
-use crate::scene::{Crack, Insert, Plate, Rgb, Scene, WALL_Z_MM};
+use crate::scene::{Crack, Insert, Plate, Rgb, Scene};
 use crate::shapes::{FaceShape, Opening, box_sd, face_sd, segment_distance};
 use image::RgbImage;
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
@@ -135,7 +135,7 @@ impl<'a> Prepared<'a> {
     fn thin_feature_boxes(&self) -> Vec<[f64; 4]> {
         let mut boxes_mm: Vec<([f64; 2], [f64; 2], f64)> = Vec::new(); // (min, max, z)
         for plate in &self.scene.plates {
-            let z = plate.top_z();
+            let z = plate.top_z(self.scene.wall_z_mm);
             let c = plate.centre;
             for s in &plate.screws {
                 let r = s.radius;
@@ -165,7 +165,7 @@ impl<'a> Prepared<'a> {
         }
         for s in &self.scene.spots {
             let r = s.radius;
-            for z in [0.0, 2.0, WALL_Z_MM] {
+            for z in [0.0, 2.0, self.scene.wall_z_mm] {
                 boxes_mm.push(([s.centre[0] - r, s.centre[1] - r], [s.centre[0] + r, s.centre[1] + r], z));
             }
         }
@@ -202,7 +202,7 @@ impl<'a> Prepared<'a> {
     /// The first surface a ray meets.
     fn hit(&self, ray: &Ray) -> Hit {
         let p0 = ray.at(0.0);
-        let pw = ray.at(WALL_Z_MM);
+        let pw = ray.at(self.scene.wall_z_mm);
         for (index, plate) in self.scene.plates.iter().enumerate() {
             let (hx, hy) = (plate.size[0] / 2.0, plate.size[1] / 2.0);
             let (cx, cy) = (plate.centre[0], plate.centre[1]);
@@ -240,8 +240,8 @@ impl<'a> Prepared<'a> {
             return hit;
         }
         let z = match hit.lit {
-            Lit::Flat { shadow: ShadowOn::Wall } => WALL_Z_MM,
-            Lit::Flat { shadow: ShadowOn::Plate(i) } => self.scene.plates[i].top_z(),
+            Lit::Flat { shadow: ShadowOn::Wall } => self.scene.wall_z_mm,
+            Lit::Flat { shadow: ShadowOn::Plate(i) } => self.scene.plates[i].top_z(self.scene.wall_z_mm),
             Lit::Inside => return hit,
             _ => 0.0,
         };
@@ -264,7 +264,7 @@ impl<'a> Prepared<'a> {
             let p = ray.at(z);
             [p[0] - c[0], p[1] - c[1]]
         };
-        let zt = plate.top_z();
+        let zt = plate.top_z(self.scene.wall_z_mm);
         let gloss = plate.gloss;
         let shininess = plate.shininess;
         // Receptacle faces stand on the plate, from its top up to z = 0.
@@ -344,7 +344,7 @@ impl<'a> Prepared<'a> {
         if q[0].abs() <= thx && q[1].abs() <= thy {
             return Some(self.plate_top(index, id, plate, ray, q));
         }
-        let qw = local(WALL_Z_MM);
+        let qw = local(self.scene.wall_z_mm);
         if qw[0].abs() <= plate.size[0] / 2.0 && qw[1].abs() <= plate.size[1] / 2.0 {
             // The bevel rises from the wall to the top: its normal leans outwards.
             let (ox, oy) =
@@ -525,10 +525,10 @@ impl<'a> Prepared<'a> {
         match on {
             ShadowOn::Raised => 1.0,
             ShadowOn::Wall => {
-                let p = ray.at(WALL_Z_MM);
+                let p = ray.at(self.scene.wall_z_mm);
                 let mut lit = 1.0f32;
                 for plate in &self.scene.plates {
-                    let to_light = [l.x - p[0], l.y - p[1], l.z - WALL_Z_MM];
+                    let to_light = [l.x - p[0], l.y - p[1], l.z - self.scene.wall_z_mm];
                     if to_light[2] >= -1e-9 {
                         continue;
                     }
@@ -547,7 +547,7 @@ impl<'a> Prepared<'a> {
             ShadowOn::Plate(i) => {
                 let plate = &self.scene.plates[i];
                 let Insert::Receptacles(faces) = &plate.insert else { return 1.0 };
-                let zt = plate.top_z();
+                let zt = plate.top_z(self.scene.wall_z_mm);
                 let p = ray.at(zt);
                 let to_light = [l.x - p[0], l.y - p[1], l.z - zt];
                 if to_light[2] >= -1e-9 {

@@ -12,9 +12,32 @@ use outlet_protocol::geometry::{DUPLEX_PITCH_MM, GANG_PITCH_MM, OutletGeometry, 
 pub const SCENARIOS: [&str; 8] =
     ["fw_2x1white", "orange2x1", "whitehall2x1", "cracked2x2", "fw_2x2orange", "specular2x2", "white2x2", "negative"];
 
+/// The prefix of the realistic-stereo family: `rs_orange2x1` is the scene of
+/// `orange2x1` (same seed, same draws) with the stereo of a real pair
+/// ([`crate::scene::StereoModel::realistic`]) and the receptacle face 3-7 mm
+/// ahead of the wall instead of the nominal 5.
+pub const REALISTIC_STEREO_PREFIX: &str = "rs_";
+
+/// [`SCENARIOS`] with realistic stereo ([`REALISTIC_STEREO_PREFIX`]), same order.
+pub const REALISTIC_SCENARIOS: [&str; 8] = [
+    "rs_fw_2x1white",
+    "rs_orange2x1",
+    "rs_whitehall2x1",
+    "rs_cracked2x2",
+    "rs_fw_2x2orange",
+    "rs_specular2x2",
+    "rs_white2x2",
+    "rs_negative",
+];
+
+/// The scenario of this name, from [`SCENARIOS`] or [`REALISTIC_SCENARIOS`].
+pub fn scenario_named(name: &str) -> Option<&'static str> {
+    SCENARIOS.iter().chain(&REALISTIC_SCENARIOS).copied().find(|s| *s == name)
+}
+
 /// Image counts of the paper's Table I (300 for our negatives).
 pub fn paper_count(scenario: &str) -> usize {
-    match scenario {
+    match scenario.strip_prefix(REALISTIC_STEREO_PREFIX).unwrap_or(scenario) {
         "fw_2x1white" => 111,
         "orange2x1" | "whitehall2x1" => 103,
         "cracked2x2" => 100,
@@ -27,7 +50,7 @@ pub fn paper_count(scenario: &str) -> usize {
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
-    #[error("unknown scenario {0:?}; known: {list}", list = SCENARIOS.join(", "))]
+    #[error("unknown scenario {0:?}; known: {list}, each also with the prefix rs_ (realistic stereo)", list = SCENARIOS.join(", "))]
     Unknown(String),
     #[error("no pose with every hole inside the {width}x{height} image was found for {scenario} #{index}")]
     NoPose { scenario: String, index: u64, width: u32, height: u32 },
@@ -116,8 +139,12 @@ enum Kind {
 
 /// Draws the scene of image `index` of a scenario.
 pub fn sample_scene(scenario: &str, seed: u64, index: u64, camera: &CameraModel) -> Result<Scene, ScenarioError> {
-    let style = style(scenario).ok_or_else(|| ScenarioError::Unknown(scenario.to_string()))?;
-    let mut rng = SimRng::new(image_seed(seed, scenario, index));
+    let (base, realistic) = match scenario.strip_prefix(REALISTIC_STEREO_PREFIX) {
+        Some(base) => (base, true),
+        None => (scenario, false),
+    };
+    let style = style(base).ok_or_else(|| ScenarioError::Unknown(scenario.to_string()))?;
+    let mut rng = SimRng::new(image_seed(seed, base, index));
     let search_template = match style.template {
         Some(t) => t.to_string(),
         None => (if rng.chance(0.5) { "2x1" } else { "2x2" }).to_string(),
@@ -180,6 +207,14 @@ pub fn sample_scene(scenario: &str, seed: u64, index: u64, camera: &CameraModel)
     let wall_colour = pick_colour(&mut spot_rng, &WALLS, 0.1);
     let wall_texture = spot_rng.range(0.01, 0.06) as f32;
 
+    let (stereo, wall_z_mm) = if realistic {
+        // A stream of its own: the realistic scene is the base scene but for these.
+        let mut real = SimRng::new(image_seed(seed, scenario, index));
+        let wall_z_mm = real.range(3.0, 7.0);
+        (StereoModel::realistic(&mut real, Point3::from(pose.translation.vector)), wall_z_mm)
+    } else {
+        (StereoModel::default(), WALL_Z_MM)
+    };
     Ok(Scene {
         camera: *camera,
         pose,
@@ -196,7 +231,8 @@ pub fn sample_scene(scenario: &str, seed: u64, index: u64, camera: &CameraModel)
         hole_fade_mm,
         hole_floor,
         sensor,
-        stereo: StereoModel::default(),
+        stereo,
+        wall_z_mm,
         noise_seed: rng.next_u64(),
     })
 }

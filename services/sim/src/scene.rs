@@ -1,7 +1,8 @@
 //! What a rendered scene holds: the camera, the outlet's pose, the plates on the
 //! wall with their inserts and flaws, the light and the sensor. All lengths on the
 //! wall are millimetres in the outlet frame of `CONTRACT.md` (x right, y down seen
-//! from the front, z into the wall, receptacle face at z = 0, wall at z = +5).
+//! from the front, z into the wall, receptacle face at z = 0, wall at z =
+//! [`Scene::wall_z_mm`], nominally +5).
 
 use nalgebra::{Isometry3, Point3, Vector3};
 use outlet_protocol::CameraModel;
@@ -10,7 +11,8 @@ use outlet_protocol::geometry::{FACE_OFFSET_MM, OutletGeometry};
 /// Linear RGB reflectance or radiance.
 pub type Rgb = [f32; 3];
 
-/// The z of the wall surface in the outlet frame (mm).
+/// The z of the wall surface in the outlet frame (mm) of `CONTRACT.md`: the
+/// nominal face offset. Real plates and receptacles differ ([`Scene::wall_z_mm`]).
 pub const WALL_Z_MM: f64 = FACE_OFFSET_MM;
 
 /// A receptacle face: its centre relative to the plate centre, its colour, and
@@ -97,9 +99,9 @@ pub struct Plate {
 }
 
 impl Plate {
-    /// z of the plate's flat top in the outlet frame (mm).
-    pub fn top_z(&self) -> f64 {
-        WALL_Z_MM - self.proud
+    /// z of the plate's flat top in the outlet frame (mm), on a wall at `wall_z_mm`.
+    pub fn top_z(&self, wall_z_mm: f64) -> f64 {
+        wall_z_mm - self.proud
     }
 }
 
@@ -155,11 +157,65 @@ pub struct StereoModel {
     pub outlier_fraction: f64,
     /// Fraction of the image covered by blobs without stereo (NaN).
     pub dropout_fraction: f64,
+    /// Depth noise proportional to the range (sigma as a fraction of z), as block
+    /// matchers on plain walls give; 0 for none.
+    pub range_sigma_fraction: f64,
+    /// Keep at most this many valid points (a random subset, the rest NaN): the
+    /// density of a real stereo pair's cloud on a plain wall.
+    pub max_points: Option<usize>,
+    /// The fraction of points kept on the plate and the faces (they are small and
+    /// smooth: a matcher finds few points there).
+    pub raised_keep: f64,
+    /// No points within this radius (mm, outlet frame) of the outlet's centre.
+    pub outlet_dropout_mm: Option<f64>,
+    /// The stereo pair's calibration bias: every point moved by this rigid motion
+    /// (camera frame), so the fitted wall is a little off the true one.
+    pub bias: Isometry3<f64>,
 }
 
 impl Default for StereoModel {
     fn default() -> Self {
-        Self { step: 2, baseline_m: 0.09, disparity_sigma_px: 0.15, outlier_fraction: 0.01, dropout_fraction: 0.08 }
+        Self {
+            step: 2,
+            baseline_m: 0.09,
+            disparity_sigma_px: 0.15,
+            outlier_fraction: 0.01,
+            dropout_fraction: 0.08,
+            range_sigma_fraction: 0.0,
+            max_points: None,
+            raised_keep: 1.0,
+            outlet_dropout_mm: None,
+            bias: Isometry3::identity(),
+        }
+    }
+}
+
+impl StereoModel {
+    /// The cloud a real stereo pair gives at the outlet (`outlet_cam_m`, camera
+    /// frame): 1,500-5,000 points, noise 0.8-2% of range, 5-15% outliers, few
+    /// points on the plate, none over the outlet in a third of the views, and a
+    /// calibration bias that puts the fitted wall 0.3-1 degree and 0.5-2 mm off.
+    pub fn realistic(rng: &mut crate::rng::SimRng, outlet_cam_m: Point3<f64>) -> Self {
+        let axis = nalgebra::Unit::new_normalize(Vector3::new(rng.normal(), rng.normal(), rng.normal()));
+        let angle = rng.range(0.3, 1.0).to_radians();
+        let rotation = nalgebra::UnitQuaternion::from_axis_angle(&axis, angle);
+        // Turned about the outlet, so that the offset alone sets the error there.
+        let offset_dir = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+        let offset = offset_dir * rng.range(0.5e-3, 2e-3);
+        let about = outlet_cam_m.coords;
+        let translation = about - rotation * about + offset;
+        Self {
+            step: 2,
+            baseline_m: 0.09,
+            disparity_sigma_px: 0.15,
+            outlier_fraction: rng.range(0.05, 0.15),
+            dropout_fraction: rng.range(0.0, 0.15),
+            range_sigma_fraction: rng.range(0.008, 0.02),
+            max_points: Some(rng.range(1500.0, 5000.0) as usize),
+            raised_keep: rng.range(0.02, 0.2),
+            outlet_dropout_mm: if rng.chance(1.0 / 3.0) { Some(rng.range(60.0, 120.0)) } else { None },
+            bias: Isometry3::from_parts(translation.into(), rotation),
+        }
     }
 }
 
@@ -188,6 +244,9 @@ pub struct Scene {
     pub hole_floor: f32,
     pub sensor: Sensor,
     pub stereo: StereoModel,
+    /// The wall surface's z in the outlet frame (mm): how far the receptacle face
+    /// stands ahead of the wall. [`WALL_Z_MM`] nominally; 3-7 mm on real walls.
+    pub wall_z_mm: f64,
     /// Seed of the per-pixel noise and of the cloud.
     pub noise_seed: u64,
 }
@@ -207,7 +266,7 @@ impl Scene {
     /// wall's distance `d` with `n . X = d` (metres).
     pub fn wall_plane_cam(&self) -> (Vector3<f64>, f64) {
         let n = self.pose.rotation * Vector3::z();
-        let on_wall = self.pose * Point3::new(0.0, 0.0, WALL_Z_MM / 1000.0);
+        let on_wall = self.pose * Point3::new(0.0, 0.0, self.wall_z_mm / 1000.0);
         (n, n.dot(&on_wall.coords))
     }
 }
