@@ -175,6 +175,8 @@ pub fn compare_outlines(
     let [a, b] = [own.half_extent(), other.0.half_extent()];
     let window = [a[0].max(b[0]), a[1].max(b[1])];
     let sse = |r: &Refined| r.rms * r.rms * r.pixels as f64;
+    // Both start at the refined centre: a few steps settle them (time).
+    let params = &RefineParams { iterations: params.iterations.min(3), ..*params };
     let mine = fit(grey, centre, mm_to_px, own, params, true, window)?;
     let theirs = fit(grey, centre, &other.1, other.0, params, true, window);
     // The other outline finding no dark opening at all is evidence for this one:
