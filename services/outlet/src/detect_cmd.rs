@@ -12,7 +12,7 @@ use outlet_detector::detect::{DetectReport, Detection, Detector, DetectorParams}
 use outlet_detector::template::{TrainingImage, train_template};
 use outlet_detector::{Class, grey_of};
 use outlet_normal::{PlaneParams, fit_wall_plane};
-use outlet_pose::{Observations, OutletPose, PlaneMeasurement, solve_mono, solve_normal, solve_plane};
+use outlet_pose::{Observations, OutletPose, PlaneMeasurement, PoseError, solve_mono, solve_normal, solve_plane};
 use outlet_protocol::camera_info::read_camera_info;
 use outlet_protocol::ply::read_ply;
 use outlet_protocol::truth::PoseJson;
@@ -203,8 +203,17 @@ fn run_one(job: &Job, detectors: &mut Detectors, annotate: Option<&Path>, severa
             .with_context(|| format!("writing {}", out.display()))?;
     }
     let t = Instant::now();
+    // An ambiguous mono pose is no pose: positions and pose null, and why.
+    let mut pose_status = None;
     let pose = match (&report.detection, &camera) {
-        (Some(d), Some(camera)) => Some(solve_pose(d, detector, camera, &job.wall)?),
+        (Some(d), Some(camera)) => match solve_pose(d, detector, camera, &job.wall) {
+            Ok(p) => Some(p),
+            Err(e) if matches!(e.downcast_ref::<PoseError>(), Some(PoseError::Ambiguous { .. })) => {
+                pose_status = Some("ambiguous");
+                None
+            }
+            Err(e) => return Err(e),
+        },
         _ => None,
     };
     let pose_ms = pose.as_ref().map(|_| t.elapsed().as_secs_f64() * 1e3);
@@ -246,6 +255,7 @@ fn run_one(job: &Job, detectors: &mut Detectors, annotate: Option<&Path>, severa
         "template": job.template,
         "holes": holes,
         "pose": pose_json,
+        "pose_status": pose_status.or(pose.as_ref().map(|_| "ok")),
         "timing_ms": {"detect": detect_ms, "pose": pose_ms},
     }))
 }
@@ -275,8 +285,15 @@ fn solve_pose(detection: &Detection, detector: &Detector, camera: &CameraModel, 
     let geometry = &detector.template().geometry;
     let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
     let pixels: Vec<Point2<f64>> = detection.holes.iter().map(|h| h.pixel).collect();
-    let obs =
-        Observations { model_mm: &model, pixels: &pixels, camera, pixel_sigma: HOLE_PIXEL_SIGMA, pixel_sigmas: None };
+    // Each hole's own sigma from the detector's fit (HOLE_PIXEL_SIGMA where it has none).
+    let sigmas: Vec<f64> = detection.holes.iter().map(|h| h.sigma_px).collect();
+    let obs = Observations {
+        model_mm: &model,
+        pixels: &pixels,
+        camera,
+        pixel_sigma: HOLE_PIXEL_SIGMA,
+        pixel_sigmas: Some(&sigmas),
+    };
     let pose = match wall {
         Wall::Normal(n) => solve_normal(&obs, n, GIVEN_NORMAL_SIGMA_RAD)?,
         Wall::Points(path) => {
