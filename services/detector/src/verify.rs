@@ -89,3 +89,69 @@ pub fn identity_gain(
     }
     (own > 0.0).then(|| gain / own)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const NEUTRAL: HoleShape = HoleShape::Slot { width_mm: 2.0, length_mm: 8.7 };
+    const HOT: HoleShape = HoleShape::Slot { width_mm: 2.0, length_mm: 7.1 };
+    const GROUND: HoleShape = HoleShape::Round { diameter_mm: 5.0, flat_mm: 1.6 };
+
+    /// A bright face with a dark slot 2 mm wide and `length_mm` long at (30, 30),
+    /// 2 px per mm, anti-aliased by 4x4 supersampling.
+    fn slot_image(length_mm: f64) -> GrayImage {
+        GrayImage::from_fn(60, 60, |x, y| {
+            let mut dark = 0.0;
+            for k in 0..16 {
+                let u = (x as f64 + (k % 4) as f64 / 4.0 - 0.375 - 30.0) / 2.0;
+                let v = (y as f64 + (k / 4) as f64 / 4.0 - 0.375 - 30.0) / 2.0;
+                if u.abs() <= 1.0 && v.abs() <= length_mm / 2.0 {
+                    dark += 1.0 / 16.0;
+                }
+            }
+            image::Luma([(200.0 - 170.0 * dark) as u8])
+        })
+    }
+
+    #[test]
+    fn a_slot_is_told_long_or_short_by_its_outline() {
+        let map = Matrix2::identity() * 2.0;
+        let outlines = [NEUTRAL, HOT, GROUND];
+        let params = RefineParams::default();
+        let centre = Point2::new(30.0, 30.0);
+        let long = slot_image(8.7);
+        let short = slot_image(7.1);
+        let gain = |image: &GrayImage, shape| identity_gain(image, &[(centre, map, shape)], &outlines, &params);
+        let (right_long, wrong_long) = (gain(&long, NEUTRAL).expect("fit"), gain(&long, HOT).expect("fit"));
+        let (right_short, wrong_short) = (gain(&short, HOT).expect("fit"), gain(&short, NEUTRAL).expect("fit"));
+        assert!(right_long > 0.05 && wrong_long < 0.0, "long slot: {right_long:.3} / {wrong_long:.3}");
+        assert!(right_short > 0.05 && wrong_short < 0.0, "short slot: {right_short:.3} / {wrong_short:.3}");
+    }
+
+    #[test]
+    fn only_slots_of_two_lengths_have_a_swapped_outline() {
+        let map = Matrix2::identity();
+        assert_eq!(swapped_outline(NEUTRAL, &[NEUTRAL, HOT, GROUND], &map).map(|o| o.0), Some(HOT));
+        assert_eq!(swapped_outline(HOT, &[NEUTRAL, HOT, GROUND], &map).map(|o| o.0), Some(NEUTRAL));
+        assert_eq!(swapped_outline(GROUND, &[NEUTRAL, HOT, GROUND], &map), None);
+        assert_eq!(swapped_outline(HOT, &[HOT, HOT, GROUND], &map), None);
+    }
+
+    #[test]
+    fn a_hole_scores_its_explained_share_less_its_offset() {
+        let fit = Refined {
+            centre: Point2::origin(),
+            rms: 1.0,
+            contrast: 100.0,
+            sigma_px: 0.1,
+            explained: 0.8,
+            pixels: 100,
+            total_ss: 1e4,
+        };
+        assert!((hole_score(&fit, 0.0, 1.2) - 0.8).abs() < 1e-12);
+        assert!((hole_score(&fit, 0.6, 1.2) - 0.6).abs() < 1e-12);
+        assert_eq!(hole_score(&fit, 1.2, 1.2), 0.0);
+        assert_eq!(hole_score(&fit, 5.0, 1.2), 0.0);
+    }
+}
