@@ -91,8 +91,14 @@ cc -O2 -Wall -o "$WORK/apriltag_bench" "$HERE/apriltag_bench.c" \
 APRIL="$WORK/apriltag_bench"
 PY="$HERE/bench_vs_apriltag.py"
 
-echo "outlet: $("$OUTLET" --version 2>/dev/null || echo "$OUTLET_BIN"), commit $(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null || echo '?')$(git -C "$ROOT" diff --quiet HEAD -- services protocol clients 2>/dev/null || echo ' (+ uncommitted changes)')" >&2
-echo "apriltag: $(dpkg-query -W -f='${Version}' libapriltag-dev 2>/dev/null || echo '?')" >&2
+if [[ "$OUTLET_BIN" == "$ROOT/target/release/outlet" ]]; then
+    SRC="built from the working tree at commit $(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null || echo '?')"
+    git -C "$ROOT" diff --quiet HEAD -- services protocol clients Cargo.toml Cargo.lock 2>/dev/null \
+        || SRC="$SRC with uncommitted changes"
+else
+    SRC="the binary $OUTLET_BIN"
+fi
+VERSIONS="outlet: $SRC; AprilTag: libapriltag-dev $(dpkg-query -W -f='${Version}' libapriltag-dev 2>/dev/null || echo '?'); CPU: $(grep -m1 'model name' /proc/cpuinfo | sed 's/.*: //'), $(nproc) cores, load average $(cut -d' ' -f1-3 /proc/loadavg) at the start"
 
 ROWS=()
 JSONS=()
@@ -142,6 +148,7 @@ if [[ -n "$KEEP" ]]; then
 fi
 
 echo
+echo "$VERSIONS"
 echo "N = $COUNT images per resolution, $REPS repetitions, one core (taskset -c 0); ms, medians over the images."
 echo "wall: outlet's own timing_ms.detect (Detector::detect, image decoded in memory) vs apriltag_detector_detect alone;"
 echo "CPU: outlet's process CPU time per image over a batch run ((N images - 1 image) / (N - 1), PNG decoding included)"
@@ -150,5 +157,7 @@ echo
 echo "| resolution | N | outlet detect, wall | AprilTag d1 / d2, wall | outlet / AprilTag d1 / d2 | outlet per image, CPU, reading incl. | AprilTag d1 / d2 read + detect, CPU | outlet / AprilTag d1 / d2 | outlet found | AprilTag found d1, d2 |"
 echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
 printf '%s\n' "${ROWS[@]}"
+echo
+echo "load average at the end: $(cut -d' ' -f1-3 /proc/loadavg)"
 echo
 printf '%s\n' "${JSONS[@]}"
