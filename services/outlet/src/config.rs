@@ -55,6 +55,16 @@ pub struct PoseConfig {
     /// holes it kept cannot explain the detection (another wall, a wrong hole):
     /// the result says `plane_mismatch` and carries no pose.
     pub max_rms_px: f64,
+    /// How far a receptacle face may stand from the template's nominal face
+    /// offset (mm, one sigma; CONTRACT: 5.0 nominal, real faces differ by a few
+    /// mm). It widens the plane's distance in the covariance. 0: the nominal
+    /// is exact (the simulated camera's default scenes).
+    pub face_offset_sigma_mm: f64,
+    /// A calibration bias of the stereo pair not in the plane fit's own
+    /// covariance: on the wall normal (degrees, one sigma) ...
+    pub plane_tilt_sigma_deg: f64,
+    /// ... and on the wall distance (mm, one sigma). 0: none.
+    pub plane_distance_sigma_mm: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -108,6 +118,9 @@ impl Default for PoseConfig {
             plane_wait_ms: 50.0,
             pixel_sigma: 0.25,
             max_rms_px: 2.0,
+            face_offset_sigma_mm: 0.0,
+            plane_tilt_sigma_deg: 0.0,
+            plane_distance_sigma_mm: 0.0,
         }
     }
 }
@@ -151,6 +164,15 @@ impl Config {
         }
         if !(self.pose.plane_wait_ms >= 0.0 && self.pose.plane_wait_ms <= 10_000.0) {
             bail!("key `pose.plane_wait_ms`: {} is not in 0..=10000", self.pose.plane_wait_ms);
+        }
+        for (key, v) in [
+            ("face_offset_sigma_mm", self.pose.face_offset_sigma_mm),
+            ("plane_tilt_sigma_deg", self.pose.plane_tilt_sigma_deg),
+            ("plane_distance_sigma_mm", self.pose.plane_distance_sigma_mm),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                bail!("key `pose.{key}`: {v} is not a standard deviation");
+            }
         }
         if !(self.pose.max_rms_px > 0.0 && self.pose.max_rms_px.is_finite()) {
             bail!("key `pose.max_rms_px`: {} is not positive", self.pose.max_rms_px);

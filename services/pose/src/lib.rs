@@ -125,6 +125,22 @@ impl PlaneMeasurement {
         let covariance = Matrix3::from_diagonal(&Vector3::new(sigma_rad.powi(2), sigma_rad.powi(2), sigma_m.powi(2)));
         Self { normal, distance_m, covariance, tangent, face_offset_m }
     }
+
+    /// The same plane with what its fit cannot know added to its covariance:
+    /// how far a real receptacle face stands from the nominal `face_offset_m`
+    /// (`face_offset_sigma_m`: it moves the holes' plane as a distance error
+    /// does), and a calibration bias of the stereo pair on the normal
+    /// (`tilt_sigma_rad`) and the distance (`distance_sigma_m`). Zero adds
+    /// nothing.
+    pub fn with_model_error(self, face_offset_sigma_m: f64, tilt_sigma_rad: f64, distance_sigma_m: f64) -> Self {
+        let sq = |v: f64| if v.is_finite() { v * v } else { 0.0 };
+        let extra = Matrix3::from_diagonal(&Vector3::new(
+            sq(tilt_sigma_rad),
+            sq(tilt_sigma_rad),
+            sq(face_offset_sigma_m) + sq(distance_sigma_m),
+        ));
+        Self { covariance: self.covariance + extra, ..self }
+    }
 }
 
 /// A solved outlet pose with its holes.

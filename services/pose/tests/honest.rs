@@ -223,3 +223,22 @@ fn mono_says_ambiguous_when_the_mirror_explains_the_pixels() {
     let err = sol.holes_cam_m.iter().zip(&m).map(|(h, mm)| (h - hole(&near, mm)).norm()).fold(0.0, f64::max);
     assert!(err < 1e-9);
 }
+
+#[test]
+fn a_face_further_from_the_wall_than_nominal_is_covered_by_its_prior() {
+    // The face stands 7 mm ahead of the wall, the template says 5: the plane
+    // puts the holes 2 mm too deep. Only the face-offset prior covers that.
+    let m = model("2x1");
+    let truth = pose(0.3, 20.0, 60.0, 0.0);
+    let px = pixels(&truth, &m);
+    let obs = Observations { model_mm: &m, pixels: &px, camera: &camera(), pixel_sigma: 0.15, pixel_sigmas: None };
+    let n = truth.rotation * Vector3::z();
+    let wall = PlaneMeasurement::new(n, n.dot(&truth.translation.vector) + 0.007, 0.002, 0.0002, 0.005);
+    let worst =
+        |w: &PlaneMeasurement| nees(&solve_plane(&obs, w).expect("plane"), &truth, &m).into_iter().fold(0.0, f64::max);
+    assert!(worst(&wall) > 25.0, "without the prior the error bars miss: {}", worst(&wall));
+    let covered = wall.with_model_error(1.15e-3, 0.0, 0.0);
+    assert!(worst(&covered) < CHI2_3_999, "with it they hold: {}", worst(&covered));
+    // Nothing added, nothing changed.
+    assert_eq!(wall.with_model_error(0.0, 0.0, 0.0), wall);
+}

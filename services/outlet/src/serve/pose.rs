@@ -184,7 +184,12 @@ fn solve(
                 covariance: Matrix3::from_row_slice(&p.covariance),
                 tangent: p.tangent.map(Vector3::from),
                 face_offset_m: geometry.face_offset_mm / 1000.0,
-            };
+            }
+            .with_model_error(
+                config.face_offset_sigma_mm / 1e3,
+                config.plane_tilt_sigma_deg.to_radians(),
+                config.plane_distance_sigma_mm / 1e3,
+            );
             match solve_plane(&obs, &measurement) {
                 // Pixels off by more than max_rms_px count against the plane only
                 // where their own sigmas do not explain them (a hole the detector
