@@ -220,7 +220,10 @@ fn eval_writes_table_plot_and_pose_inputs_for_opencv() {
     let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let python = std::env::var_os("OUTLET_PYTHON").map_or_else(|| repo.join(".venv/bin/python"), PathBuf::from);
     let out = Command::new(&python).arg(repo.join("tests/opencv_pnp.py")).arg(&inputs).output().unwrap_or_else(|e| {
-        panic!("{} (OpenCV for the pose comparison) could not be run: {e}; scripts/test.sh creates it", python.display())
+        panic!(
+            "{} (OpenCV for the pose comparison) could not be run: {e}; scripts/test.sh creates it",
+            python.display()
+        )
     });
     assert!(out.status.success(), "{}: {}", python.display(), String::from_utf8_lossy(&out.stderr));
     let summary: Value = serde_json::from_slice(&out.stdout).expect("json");

@@ -50,10 +50,8 @@ fn a_realistic_cloud_is_sparse_noisy_biased_and_may_leave_the_outlet_bare() {
         // Undo the calibration bias: the wall points scatter about the true wall by
         // about the range noise (1-2% of the range; median |e| is 0.67 sigma).
         let truth = ground_truth(&scene, "x.png");
-        let unbiased: Vec<f64> = points
-            .iter()
-            .map(|p| truth.wall_plane.signed_distance(&(model.bias.inverse() * p)).abs() / p.z)
-            .collect();
+        let unbiased: Vec<f64> =
+            points.iter().map(|p| truth.wall_plane.signed_distance(&(model.bias.inverse() * p)).abs() / p.z).collect();
         let spread = median(unbiased) / (0.674 * model.range_sigma_fraction);
         assert!((0.6..1.6).contains(&spread), "#{index}: median wall error {spread} of the model's");
 
@@ -68,9 +66,10 @@ fn a_realistic_cloud_is_sparse_noisy_biased_and_may_leave_the_outlet_bare() {
             bare += 1;
             let inv = scene.pose.inverse();
             // Outliers are moved along their rays, anywhere: only points on the wall count.
-            let on_wall = points.iter().map(|p| model.bias.inverse() * p).filter(|p| {
-                truth.wall_plane.signed_distance(p).abs() < 5.0 * model.range_sigma_fraction * p.z
-            });
+            let on_wall = points
+                .iter()
+                .map(|p| model.bias.inverse() * p)
+                .filter(|p| truth.wall_plane.signed_distance(p).abs() < 5.0 * model.range_sigma_fraction * p.z);
             for p in on_wall {
                 let q = inv * p;
                 assert!(
