@@ -544,14 +544,14 @@ mod tests {
         // Slot pitch 30 px: the paper's 5 px holds. Pitch 15 px: a fifth of it, 3 px.
         let truth = [Point2::new(100.0, 100.0), Point2::new(130.0, 100.0), Point2::new(115.0, 128.0)];
         let near = [Point2::new(104.0, 100.0), Point2::new(130.0, 103.0), Point2::new(115.0, 128.0)];
-        assert_eq!(judge(&near, &truth).0, true);
+        assert!(judge(&near, &truth).0);
         let far = [Point2::new(105.5, 100.0), Point2::new(130.0, 100.0), Point2::new(115.0, 128.0)];
-        assert_eq!(judge(&far, &truth).0, false);
+        assert!(!judge(&far, &truth).0);
         let small = truth.map(|p| Point2::new(p.x / 2.0, p.y / 2.0));
         let shifted = [Point2::new(53.5, 50.0), small[1], small[2]];
         let (correct, errors, tolerance) = judge(&shifted, &small);
         assert!(!correct && (tolerance - 3.0).abs() < 1e-9 && (errors[0] - 3.5).abs() < 1e-9);
         // A found outlet with fewer holes than the labels is never correct.
-        assert_eq!(judge(&truth[..2], &truth).0, false);
+        assert!(!judge(&truth[..2], &truth).0);
     }
 }
