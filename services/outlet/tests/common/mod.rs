@@ -68,3 +68,68 @@ pub fn frontal_scene(
         .find(|scene| outlet_sim::truth::view(scene).off_axis_deg < max_off_axis_deg)
         .ok_or_else(|| format!("no scene of {scenario} within {max_off_axis_deg} degrees of frontal"))
 }
+
+/// Publishes a frame and its stereo cloud (the cloud first, stamped alike: the
+/// pose service joins a detection with the plane closest in time) into the
+/// domain's shared memory, again with a new stamp every ~450 ms, until a hole
+/// poses result that `accept` takes comes back; fails after `timeout` or when a
+/// service dies.
+#[allow(dead_code)] // not every test binary that shares this module uses it
+pub fn feed_until(
+    services: &mut Services,
+    camera: &outlet_protocol::CameraModel,
+    pixels: &[u8],
+    cloud: &[f32],
+    timeout: std::time::Duration,
+    accept: impl Fn(&outlet_protocol::wire::HolePosesMsg) -> bool,
+) -> Result<outlet_protocol::wire::HolePosesMsg, Box<dyn std::error::Error>> {
+    use outlet_protocol::shm;
+    use outlet_protocol::wire::{CloudHeader, FrameHeader, HolePosesMsg, PixelFormat, SCHEMA_VERSION, service};
+    use std::time::{Duration, Instant};
+    let node = shm::node(&services.1, "test")?;
+    let frame_pub = shm::frames(&node)?.publisher_builder().initial_max_slice_len(pixels.len()).create()?;
+    let cloud_pub = shm::clouds(&node)?.publisher_builder().initial_max_slice_len(cloud.len()).create()?;
+    let frame_note = shm::events(&node, service::FRAMES)?.notifier_builder().create()?;
+    let cloud_note = shm::events(&node, service::CLOUDS)?.notifier_builder().create()?;
+    let pose_sub = shm::messages::<HolePosesMsg>(&node, service::HOLE_POSES)?.subscriber_builder().create()?;
+    let started = Instant::now();
+    let mut id = 0u64;
+    loop {
+        if started.elapsed() > timeout {
+            return Err(format!("no accepted hole poses from the pipeline in {timeout:?}").into());
+        }
+        if !services.all_running() {
+            return Err("a service died".into());
+        }
+        id += 1;
+        let stamp = id * 1_000_000;
+        let mut c = cloud_pub.loan_slice_uninit(cloud.len())?;
+        *c.user_header_mut() = CloudHeader {
+            schema_version: SCHEMA_VERSION,
+            reserved: 0,
+            frame_id: id,
+            capture_time_ns: stamp,
+            points: (cloud.len() / 3) as u64,
+        };
+        c.write_from_slice(cloud).send()?;
+        cloud_note.notify()?;
+        std::thread::sleep(Duration::from_millis(50));
+        let mut f = frame_pub.loan_slice_uninit(pixels.len())?;
+        *f.user_header_mut() = FrameHeader::new(id, stamp, PixelFormat::Rgb8, camera);
+        f.write_from_slice(pixels).send()?;
+        frame_note.notify()?;
+        let wait = Instant::now();
+        let mut got = None;
+        while wait.elapsed() < Duration::from_millis(400) {
+            if let Some(s) = pose_sub.receive()?
+                && accept(s.payload())
+            {
+                got = Some(*s.payload());
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        if let Some(p) = got {
+            return Ok(p);
+        }
+    }
+}
