@@ -40,6 +40,11 @@ pub struct DetectorParams {
     /// much darker (relative) the found ground holes must be than the places a
     /// half-turned outlet would put them.
     pub ground_contrast: f64,
+    /// When nothing is found in an image whose larger side is at least this
+    /// (pixels), look again at half the resolution: the descriptor and the hashing
+    /// know holes up to about 50 px of slot pitch, which an HD camera passes at
+    /// 25 cm (0 = never).
+    pub pyramid_min_px: u32,
 }
 
 impl Default for DetectorParams {
@@ -56,6 +61,7 @@ impl Default for DetectorParams {
             max_plane_mm: 0.8,
             second_look_margin: 0.25,
             ground_contrast: 0.05,
+            pyramid_min_px: 1280,
         }
     }
 }
@@ -217,10 +223,55 @@ impl Detector {
                 rejected = why.or(rejected);
             }
         }
+        if detection.is_none()
+            && self.params.pyramid_min_px > 0
+            && grey.width().max(grey.height()) >= self.params.pyramid_min_px
+            && let Some(half) = self.at_half_resolution(grey, camera, &mut times)
+        {
+            match half {
+                Ok(found) => detection = Some(found),
+                Err(why) => rejected = why.or(rejected),
+            }
+        }
         if detection.is_some() {
             rejected = None;
         }
         DetectReport { detection, candidates: classified, times, rejected }
+    }
+
+    /// The outlet found in the image at half resolution (each level of a pyramid
+    /// in turn, while nothing is found), in this image's pixels; `Err` with why
+    /// not. None when the half image or its camera cannot be made.
+    fn at_half_resolution(
+        &self,
+        grey: &GrayImage,
+        camera: Option<&CameraModel>,
+        times: &mut StageTimes,
+    ) -> Option<Result<Detection, Option<String>>> {
+        let half = half_resolution(grey)?;
+        let half_camera = match camera {
+            Some(c) => Some(half_camera(c, half.width(), half.height())?),
+            None => None,
+        };
+        let report = self.detect_grey(&half, half_camera.as_ref());
+        times.candidates += report.times.candidates;
+        times.classify += report.times.classify;
+        times.hash += report.times.hash;
+        times.refine += report.times.refine;
+        Some(match report.detection {
+            // OpenCV pixel centres: full = 2 half + 0.5, in the image as captured
+            // and in undistorted pixels alike (the camera is scaled the same way).
+            Some(mut d) => {
+                let up = Matrix3::new(2.0, 0.0, 0.5, 0.0, 2.0, 0.5, 0.0, 0.0, 1.0);
+                for h in &mut d.holes {
+                    h.pixel = Point2::new(2.0 * h.pixel.x + 0.5, 2.0 * h.pixel.y + 0.5);
+                    h.sigma_px *= 2.0;
+                }
+                d.homography = up * d.homography;
+                Ok(d)
+            }
+            None => Err(report.rejected),
+        })
     }
 
     /// Hashing over the hole-classed candidates, then refinement and
@@ -501,6 +552,34 @@ impl Lens<'_> {
             _ => p,
         }
     }
+}
+
+/// The image at half resolution: each pixel the mean of a 2x2 block. None when
+/// the image is too small to halve.
+fn half_resolution(grey: &GrayImage) -> Option<GrayImage> {
+    let (w, h) = (grey.width() / 2, grey.height() / 2);
+    if w < 16 || h < 16 {
+        return None;
+    }
+    Some(GrayImage::from_fn(w, h, |x, y| {
+        let sum: u32 = [(0, 0), (1, 0), (0, 1), (1, 1)]
+            .iter()
+            .map(|&(dx, dy)| u32::from(grey.get_pixel(2 * x + dx, 2 * y + dy).0[0]))
+            .sum();
+        image::Luma([((sum + 2) / 4) as u8])
+    }))
+}
+
+/// The camera of the half-resolution image: focal lengths halved, the principal
+/// point where the same ray lands (OpenCV pixel centres), the same distortion.
+fn half_camera(camera: &CameraModel, width: u32, height: u32) -> Option<CameraModel> {
+    CameraModel::new(
+        width,
+        height,
+        [camera.fx / 2.0, camera.fy / 2.0, (camera.cx - 0.5) / 2.0, (camera.cy - 0.5) / 2.0],
+        camera.distortion,
+    )
+    .ok()
 }
 
 fn centroid(points: &[Point2<f64>]) -> Point2<f64> {
