@@ -105,6 +105,15 @@ pub struct StageTimes {
     pub refine: f64,
 }
 
+impl std::ops::AddAssign for StageTimes {
+    fn add_assign(&mut self, other: Self) {
+        self.candidates += other.candidates;
+        self.classify += other.classify;
+        self.hash += other.hash;
+        self.refine += other.refine;
+    }
+}
+
 impl StageTimes {
     pub fn total(&self) -> f64 {
         self.candidates + self.classify + self.hash + self.refine
@@ -254,10 +263,7 @@ impl Detector {
             None => None,
         };
         let report = self.detect_grey(&half, half_camera.as_ref());
-        times.candidates += report.times.candidates;
-        times.classify += report.times.classify;
-        times.hash += report.times.hash;
-        times.refine += report.times.refine;
+        *times += report.times;
         Some(match report.detection {
             // OpenCV pixel centres: full = 2 half + 0.5, in the image as captured
             // and in undistorted pixels alike (the camera is scaled the same way).

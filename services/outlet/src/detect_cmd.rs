@@ -12,7 +12,7 @@ use outlet_detector::detect::{DetectReport, Detection, Detector, DetectorParams}
 use outlet_detector::template::{TrainingImage, train_template};
 use outlet_detector::{Class, grey_of};
 use outlet_normal::{PlaneParams, fit_wall_plane};
-use outlet_pose::{Observations, OutletPose, PlaneMeasurement, PoseError, solve_mono, solve_normal, solve_plane};
+use outlet_pose::{Observations, OutletPose, PoseError, solve_mono, solve_normal, solve_plane};
 use outlet_protocol::camera_info::read_camera_info;
 use outlet_protocol::ply::read_ply;
 use outlet_protocol::truth::PoseJson;
@@ -300,13 +300,7 @@ fn solve_pose(detection: &Detection, detector: &Detector, camera: &CameraModel, 
             let cloud = read_ply(path)?;
             let plane = fit_wall_plane(&cloud, &PlaneParams::default())
                 .with_context(|| format!("fitting the wall to {}", path.display()))?;
-            let measurement = PlaneMeasurement {
-                normal: plane.normal,
-                distance_m: plane.distance_m,
-                covariance: plane.covariance,
-                tangent: plane.tangent,
-                face_offset_m: geometry.face_offset_mm / 1000.0,
-            };
+            let measurement = outlet::plane_measurement(&plane, geometry);
             solve_plane(&obs, &measurement)?
         }
         Wall::Unknown => solve_mono(&obs)?,

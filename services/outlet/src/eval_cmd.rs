@@ -274,7 +274,7 @@ fn pose_errors(
     errors_px: &[f64],
 ) -> PoseErrors {
     use nalgebra::{Point2, Point3, Vector3};
-    use outlet_pose::{Observations, PlaneMeasurement, cramer_rao, solve_mono, solve_normal, solve_plane};
+    use outlet_pose::{Observations, cramer_rao, solve_mono, solve_normal, solve_plane};
     let geometry = &detector.template().geometry;
     let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
     let pixels: Vec<Point2<f64>> = detection.holes.iter().map(|h| h.pixel).collect();
@@ -296,15 +296,8 @@ fn pose_errors(
     if let Ok(p) = solve_normal(&obs, &n_noisy, NORMAL_NOISE_RAD) {
         out.normal = errors(&p.holes_cam_m);
     }
-    let face_offset_m = geometry.face_offset_mm / 1000.0;
     if let Ok(plane) = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default()) {
-        let measurement = PlaneMeasurement {
-            normal: plane.normal,
-            distance_m: plane.distance_m,
-            covariance: plane.covariance,
-            tangent: plane.tangent,
-            face_offset_m,
-        };
+        let measurement = outlet::plane_measurement(&plane, geometry);
         if let Ok(p) = solve_plane(&obs, &measurement) {
             out.plane = errors(&p.holes_cam_m);
         }

@@ -8,7 +8,7 @@
 use anyhow::{Context, Result};
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 use outlet_detector::detect::Detector;
-use outlet_pose::{Observations, OutletPose, PlaneMeasurement, PoseError, solve_mono, solve_normal, solve_plane};
+use outlet_pose::{Observations, OutletPose, PoseError, solve_mono, solve_normal, solve_plane};
 use outlet_sim::{render_frame, sample_scene};
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -253,13 +253,7 @@ pub fn evaluate_frame(
     let plane = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default());
     match plane {
         Ok(plane) => {
-            let measurement = PlaneMeasurement {
-                normal: plane.normal,
-                distance_m: plane.distance_m,
-                covariance: plane.covariance,
-                tangent: plane.tangent,
-                face_offset_m: geometry.face_offset_mm / 1000.0,
-            };
+            let measurement = outlet::plane_measurement(&plane, &geometry);
             // Realistic stereo: the pose configured with that stereo's model error
             // (pose.face_offset_sigma_mm etc.): faces 3-7 mm ahead of the wall
             // (uniform: 1.15 mm), a bias of 0.3-1 degree (0.48 per axis) and

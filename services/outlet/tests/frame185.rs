@@ -13,10 +13,7 @@ use std::time::Duration;
 #[test]
 fn the_demos_frame_185_is_a_plane_pose_within_a_millimetre() -> Result<(), Box<dyn std::error::Error>> {
     let domain = common::domain("frame185");
-    let mut services = common::Services::start(
-        &domain,
-        &[&["detector", "--template", "2x1"], &["normal"], &["pose", "--template", "2x1"]],
-    )?;
+    let mut services = common::Services::start_2x1_pipeline(&domain)?;
     // The sim camera's 640x480 camera is the default VGA one.
     let camera = outlet_protocol::CameraModel::default_vga();
     let scene = outlet_sim::sample_scene("fw_2x1white", 1, 184, &camera)?;

@@ -9,10 +9,7 @@ use std::time::Duration;
 #[test]
 fn frames_and_clouds_in_hole_poses_out_under_a_millimetre() -> Result<(), Box<dyn std::error::Error>> {
     let domain = common::domain("pipeline");
-    let mut services = common::Services::start(
-        &domain,
-        &[&["detector", "--template", "2x1"], &["normal"], &["pose", "--template", "2x1"]],
-    )?;
+    let mut services = common::Services::start_2x1_pipeline(&domain)?;
     let camera = CameraModel::default_vga();
     let scene = common::frontal_scene("fw_2x1white", &camera, 25.0)?;
     let frame = outlet_sim::render_frame(&scene, "x");

@@ -11,10 +11,7 @@ use std::time::Duration;
 #[test]
 fn a_plane_that_cannot_explain_the_holes_gives_plane_mismatch_and_no_pose() -> Result<(), Box<dyn std::error::Error>> {
     let domain = common::domain("posestatus");
-    let mut services = common::Services::start(
-        &domain,
-        &[&["detector", "--template", "2x1"], &["normal"], &["pose", "--template", "2x1"]],
-    )?;
+    let mut services = common::Services::start_2x1_pipeline(&domain)?;
     // The sim camera's 640x480 camera is the default VGA one.
     let camera = outlet_protocol::CameraModel::default_vga();
     let scene = outlet_sim::sample_scene("fw_2x1white", 1, 184, &camera)?;

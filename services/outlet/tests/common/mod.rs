@@ -23,6 +23,12 @@ impl Services {
         Ok(Self(children, domain.to_string()))
     }
 
+    /// Detector, normal estimator and pose service of a 2x1 pipeline.
+    #[allow(dead_code)] // not every test binary that shares this module uses it
+    pub fn start_2x1_pipeline(domain: &str) -> std::io::Result<Self> {
+        Self::start(domain, &[&["detector", "--template", "2x1"], &["normal"], &["pose", "--template", "2x1"]])
+    }
+
     /// True while every service is running.
     pub fn all_running(&mut self) -> bool {
         self.0.iter_mut().all(|c| matches!(c.try_wait(), Ok(None)))
