@@ -70,6 +70,14 @@ typedef struct OutletHole {
   double position_m[3];
   // Covariance of `position_m` (m²), row-major 3x3.
   double covariance_m2[9];
+  // Standard deviation along the outlet's face normal (metres): how far in.
+  double normal_sigma_m;
+  // Standard deviations along the outlet's x and y axes in its face plane
+  // (metres): where to aim.
+  double in_plane_sigma_m[2];
+  // The largest standard deviation in any direction of the face plane
+  // (metres): insert when this is small, approach head-on until then.
+  double in_plane_max_sigma_m;
 } OutletHole;
 
 // The pose service's result for one frame.

@@ -87,6 +87,14 @@ pub struct OutletHole {
     pub position_m: [f64; 3],
     /// Covariance of `position_m` (m²), row-major 3x3.
     pub covariance_m2: [f64; 9],
+    /// Standard deviation along the outlet's face normal (metres): how far in.
+    pub normal_sigma_m: f64,
+    /// Standard deviations along the outlet's x and y axes in its face plane
+    /// (metres): where to aim.
+    pub in_plane_sigma_m: [f64; 2],
+    /// The largest standard deviation in any direction of the face plane
+    /// (metres): insert when this is small, approach head-on until then.
+    pub in_plane_max_sigma_m: f64,
 }
 
 /// The pose service's result for one frame.
@@ -121,7 +129,15 @@ pub struct OutletHolePoses {
     pub holes: [OutletHole; OUTLET_MAX_HOLES],
 }
 
-const EMPTY_HOLE: OutletHole = OutletHole { kind: 0, outlier: 0, position_m: [0.0; 3], covariance_m2: [0.0; 9] };
+const EMPTY_HOLE: OutletHole = OutletHole {
+    kind: 0,
+    outlier: 0,
+    position_m: [0.0; 3],
+    covariance_m2: [0.0; 9],
+    normal_sigma_m: 0.0,
+    in_plane_sigma_m: [0.0; 2],
+    in_plane_max_sigma_m: 0.0,
+};
 
 fn ns(t: SystemTime) -> u64 {
     t.duration_since(UNIX_EPOCH).map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
@@ -130,7 +146,8 @@ fn ns(t: SystemTime) -> u64 {
 impl From<&HolePoses> for OutletHolePoses {
     fn from(p: &HolePoses) -> Self {
         let mut holes = [EMPTY_HOLE; OUTLET_MAX_HOLES];
-        for (out, hole) in holes.iter_mut().zip(&p.holes) {
+        for (k, (out, hole)) in holes.iter_mut().zip(&p.holes).enumerate() {
+            let face = p.face_errors(k);
             *out = OutletHole {
                 kind: match hole.kind {
                     HoleKind::Power => OUTLET_HOLE_POWER,
@@ -139,6 +156,9 @@ impl From<&HolePoses> for OutletHolePoses {
                 outlier: hole.outlier.into(),
                 position_m: hole.position_m,
                 covariance_m2: std::array::from_fn(|k| hole.covariance_m2[k / 3][k % 3]),
+                normal_sigma_m: face.map_or(f64::NAN, |f| f.normal_sigma_m),
+                in_plane_sigma_m: face.map_or([f64::NAN; 2], |f| f.in_plane_sigma_m),
+                in_plane_max_sigma_m: face.map_or(f64::NAN, |f| f.in_plane_max_sigma_m),
             };
         }
         Self {

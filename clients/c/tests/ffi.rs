@@ -54,6 +54,12 @@ fn results_cross_the_abi_intact() {
         assert_eq!(hole.position_m, position);
     }
     assert_eq!(out.holes[0].covariance_m2, sent.covariances_m2[0]);
+    // The outlet faces the camera (its normal the camera's -z): 0.2 mm along the
+    // normal, 0.1 mm along each face axis, 0.11 mm at most (the correlation).
+    let h = &out.holes[0];
+    assert!((h.normal_sigma_m - 2e-4).abs() < 1e-12, "{h:?}");
+    assert!(h.in_plane_sigma_m.iter().all(|s| (s - 1e-4).abs() < 1e-12), "{h:?}");
+    assert!((h.in_plane_max_sigma_m - 1.2e-8f64.sqrt()).abs() < 1e-12, "{h:?}");
     assert_eq!(out.holes[3].kind, 0);
     // SAFETY: as above.
     assert_eq!(unsafe { outlet_client_last_result_ns(client) }, out.received_ns);

@@ -87,4 +87,4 @@ pub use client::{Client, ClientBuilder, DEFAULT_NODE_NAME};
 pub use error::{ClientError, Rejection};
 pub use outlet_protocol::HoleKind;
 pub use outlet_protocol::shm::DEFAULT_DOMAIN;
-pub use types::{Heartbeat, Hole, HolePoses, PoseMode, PoseStatus};
+pub use types::{FaceErrors, Heartbeat, Hole, HolePoses, PoseMode, PoseStatus};

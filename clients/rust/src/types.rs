@@ -125,6 +125,48 @@ impl Hole {
     }
 }
 
+/// A hole's uncertainty split the way an arm inserts: along the outlet's face
+/// normal (how far in), and in the face plane (where to aim). An arm can come
+/// in head-on while the in-plane error is large and insert once it is small.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FaceErrors {
+    /// Standard deviation along the face normal (metres).
+    pub normal_sigma_m: f64,
+    /// Standard deviations along the outlet frame's x and y axes in the face
+    /// plane (metres).
+    pub in_plane_sigma_m: [f64; 2],
+    /// The largest standard deviation in any direction of the face plane
+    /// (metres): the in-plane 2x2 covariance's larger eigenvalue, square-rooted.
+    pub in_plane_max_sigma_m: f64,
+}
+
+impl FaceErrors {
+    /// The split of a camera-frame covariance (m²) for an outlet whose frame
+    /// turns into the camera's by `rotation` (its z axis the face normal).
+    /// `None` when the rotation or covariance is not finite.
+    pub fn of(covariance_m2: &[[f64; 3]; 3], rotation: &[[f64; 3]; 3]) -> Option<Self> {
+        let finite = covariance_m2.iter().chain(rotation).flatten().all(|v| v.is_finite());
+        if !finite {
+            return None;
+        }
+        // Column k of the rotation is the outlet's axis k in the camera frame.
+        let axis = |k: usize| [rotation[0][k], rotation[1][k], rotation[2][k]];
+        let quad = |a: [f64; 3], b: [f64; 3]| {
+            (0..3).map(|r| (0..3).map(|c| a[r] * covariance_m2[r][c] * b[c]).sum::<f64>()).sum::<f64>()
+        };
+        let (x, y, z) = (axis(0), axis(1), axis(2));
+        let (xx, yy, xy) = (quad(x, x), quad(y, y), quad(x, y));
+        // Larger eigenvalue of [[xx, xy], [xy, yy]].
+        let half_trace = (xx + yy) / 2.0;
+        let largest = half_trace + (((xx - yy) / 2.0).powi(2) + xy * xy).sqrt();
+        Some(Self {
+            normal_sigma_m: quad(z, z).max(0.0).sqrt(),
+            in_plane_sigma_m: [xx.max(0.0).sqrt(), yy.max(0.0).sqrt()],
+            in_plane_max_sigma_m: largest.max(0.0).sqrt(),
+        })
+    }
+}
+
 /// The pose service's result for one frame: where the outlet and its holes are.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HolePoses {
@@ -196,6 +238,16 @@ impl HolePoses {
             translation_m: msg.translation_m,
             holes,
         })
+    }
+
+    /// Hole `index`'s uncertainty along the face normal and in the face plane;
+    /// `None` without a pose or such a hole.
+    pub fn face_errors(&self, index: usize) -> Option<FaceErrors> {
+        let hole = self.holes.get(index)?;
+        if !self.is_usable() {
+            return None;
+        }
+        FaceErrors::of(&hole.covariance_m2, &self.rotation)
     }
 
     /// Whether the result holds a pose to act on ([`PoseStatus::Ok`]).
@@ -350,6 +402,27 @@ mod tests {
         m.positions_m[1] = [0.01, 0.04, 0.3];
         m.covariances_m2[1] = [1e-8, 2e-9, 0.0, 2e-9, 4e-8, 0.0, 0.0, 0.0, 9e-8];
         m
+    }
+
+    #[test]
+    fn face_errors_split_the_covariance_along_the_outlet_normal_and_its_face() {
+        // Outlet turned 90 degrees about the camera's y axis: its normal (z) is
+        // the camera's -x, its x axis the camera's z.
+        let rotation = [[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]];
+        // 3 mm along camera x (the normal), 0.2 mm along y, 0.1 mm along z.
+        let c = [[9e-6, 0.0, 0.0], [0.0, 4e-8, 0.0], [0.0, 0.0, 1e-8]];
+        let e = FaceErrors::of(&c, &rotation).expect("finite");
+        assert!((e.normal_sigma_m - 3e-3).abs() < 1e-12, "{e:?}");
+        assert!((e.in_plane_sigma_m[0] - 1e-4).abs() < 1e-12 && (e.in_plane_sigma_m[1] - 2e-4).abs() < 1e-12);
+        assert!((e.in_plane_max_sigma_m - 2e-4).abs() < 1e-12);
+        // A correlated in-plane error: the largest direction is the diagonal.
+        let c = [[0.0; 3], [0.0, 1e-8, 1e-8], [0.0, 1e-8, 1e-8]];
+        assert!((FaceErrors::of(&c, &rotation).expect("finite").in_plane_max_sigma_m - 2e-8f64.sqrt()).abs() < 1e-12);
+        assert_eq!(FaceErrors::of(&c, &[[f64::NAN; 3]; 3]), None);
+        let p = HolePoses::from_msg(&msg(), time_from_ns(1_030_000_000)).expect("valid");
+        let e = p.face_errors(1).expect("hole 1");
+        assert!((e.normal_sigma_m - 3e-4).abs() < 1e-12);
+        assert_eq!(p.face_errors(2), None);
     }
 
     #[test]

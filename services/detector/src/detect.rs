@@ -40,6 +40,11 @@ pub struct DetectorParams {
     /// much darker (relative) the found ground holes must be than the places a
     /// half-turned outlet would put them.
     pub ground_contrast: f64,
+    /// From this relative darkness on, the ground holes alone decide the half
+    /// turn (on the Willow photographs and their views: 0.35 or more in nine of
+    /// ten readings); the slot outlines then only veto
+    /// ([`VerifyParams::max_identity_contradiction`]).
+    pub ground_decides: f64,
     /// When nothing is found in an image whose larger side is at least this
     /// (pixels), look again at half the resolution: the descriptor and the hashing
     /// know holes up to about 50 px of slot pitch, which an HD camera passes at
@@ -61,6 +66,7 @@ impl Default for DetectorParams {
             max_plane_mm: 0.8,
             second_look_margin: 0.25,
             ground_contrast: 0.05,
+            ground_decides: 0.2,
             pyramid_min_px: 1280,
         }
     }
@@ -194,12 +200,12 @@ impl Detector {
 
         // What the image and the camera tell the hashing: the frame's size, and
         // with a camera the scales an outlet 15-70 cm away can have (sqrt of the
-        // Jacobian's determinant; down to cos 60 deg of foreshortening).
+        // Jacobian's determinant; down to the most foreshortening hashing allows).
         let mut hash = self.params.hash.clone();
         hash.image_size = Some([grey.width() as f64, grey.height() as f64]);
         if let Some(c) = camera {
             let f = (c.fx * c.fy).sqrt();
-            hash.scale_range = Some([f / 700.0 * 0.5f64.sqrt(), f / 150.0]);
+            hash.scale_range = Some([f / 700.0 * hash.min_axis_ratio.clamp(0.0, 1.0).sqrt(), f / 150.0]);
         }
         let lens = Lens { camera };
         let (mut detection, mut rejected) = self.search(grey, &lens, &classified, &hash, &mut times);
@@ -274,7 +280,22 @@ impl Detector {
                     h.sigma_px *= 2.0;
                 }
                 d.homography = up * d.homography;
-                Ok(d)
+                // Found at half resolution, refined and verified again at full
+                // resolution: the half level's centres carry twice its pixel
+                // error (on the Willow views, 4-6 px where full resolution gives
+                // 1-2). Where the full level refuses, the half level's verified
+                // outlet stands, with its doubled sigma.
+                let t = Instant::now();
+                let guesses: Vec<Option<Point2<f64>>> = d.holes.iter().map(|h| Some(h.pixel)).collect();
+                let full = self.refine(grey, &Lens { camera }, &d.homography, &guesses, d.score);
+                times.refine += ms_since(t);
+                match full {
+                    Ok(full) => Ok(full),
+                    Err(why) => {
+                        tracing::debug!(reason = %why, "half-resolution outlet not refined at full resolution");
+                        Ok(d)
+                    }
+                }
             }
             None => Err(report.rejected),
         })
@@ -444,15 +465,24 @@ impl Detector {
         if det.is_nan() || det <= 0.0 {
             return Err("the refined holes read as a mirror image".to_string());
         }
-        if !self.ground_holes_are_where_they_should_be(grey, lens, &h) {
+        let ground = self.ground_evidence(grey, lens, &h);
+        if ground == GroundEvidence::Against {
             return Err("the ground holes are no darker than where a half turn would put them".to_string());
         }
-        // The outlines decide the reading against its mirror and half turn.
+        // The outlines decide the reading against its half turn, unless the
+        // ground holes did: then the mirror is all that is left, and a camera
+        // never sees one (the determinant above), so the slots only veto a
+        // reading they clearly contradict. Slot lengths are weak evidence on
+        // real photographs (a T-slot and a hot slot 8-12 px long in blur).
         let seen: Vec<(Point2<f64>, Matrix2<f64>, HoleShape)> =
             holes.iter().zip(&jacobians).zip(&self.outlines).map(|((d, j), o)| (d.pixel, *j, *o)).collect();
         if let Some(gain) = identity_gain(grey, &seen, &self.outlines, &self.params.refine) {
-            tracing::debug!(gain, "outlines against the swapped reading");
-            if gain.is_nan() || gain < self.params.verify.min_identity_gain {
+            tracing::debug!(gain, ?ground, "outlines against the swapped reading");
+            let least = match ground {
+                GroundEvidence::Decides => -self.params.verify.max_identity_contradiction,
+                _ => self.params.verify.min_identity_gain,
+            };
+            if gain.is_nan() || gain < least {
                 return Err(format!(
                     "the slot outlines fit the swapped reading (neutral and hot exchanged) about as well: gain {gain:.3}"
                 ));
@@ -466,14 +496,14 @@ impl Detector {
     /// ground holes then land on the plate, where nothing is (a false alarm that
     /// sends the arm beside the holes). The ground holes decide: where this
     /// detection puts them must be darker than where the half-turned one would.
-    fn ground_holes_are_where_they_should_be(&self, grey: &GrayImage, lens: &Lens, h: &Matrix3<f64>) -> bool {
+    fn ground_evidence(&self, grey: &GrayImage, lens: &Lens, h: &Matrix3<f64>) -> GroundEvidence {
         let holes = &self.template.geometry.holes;
         let power: Vec<Point2<f64>> =
             holes.iter().filter(|t| t.kind == HoleKind::Power).map(|t| t.position()).collect();
         let ground: Vec<Point2<f64>> =
             holes.iter().filter(|t| t.kind == HoleKind::Ground).map(|t| t.position()).collect();
         if power.is_empty() || ground.is_empty() {
-            return true;
+            return GroundEvidence::Silent;
         }
         let c = centroid(&power);
         let turn = |p: &Point2<f64>| Point2::from(2.0 * c.coords - p.coords);
@@ -482,9 +512,9 @@ impl Detector {
         // Where the turned grounds fall on holes of the template, nothing tells them apart.
         let on_holes = turned.iter().any(|g| holes.iter().any(|t| (t.position() - g).norm() < 2.0));
         if !symmetric || on_holes {
-            return true;
+            return GroundEvidence::Silent;
         }
-        let Some(jacobian) = local_jacobian(h, lens, &c) else { return false };
+        let Some(jacobian) = local_jacobian(h, lens, &c) else { return GroundEvidence::Against };
         // Half the ground hole's width (4.8 mm) in pixels.
         let radius = (2.4 * jacobian.singular_values().min()).max(1.5);
         let darkness = |points: &[Point2<f64>]| -> Option<f64> {
@@ -496,15 +526,36 @@ impl Detector {
         };
         match (darkness(&ground), darkness(&turned)) {
             (Some(here), Some(there)) => {
-                let keep = here + self.params.ground_contrast * (there + 1.0) < there;
-                tracing::debug!(here, there, keep, "ground holes against their half-turned places");
-                keep
+                // How much darker, relative to the half-turned places.
+                let contrast = (there - here) / (there + 1.0);
+                tracing::debug!(here, there, contrast, "ground holes against their half-turned places");
+                if contrast.is_nan() || contrast <= self.params.ground_contrast {
+                    GroundEvidence::Against
+                } else if contrast >= self.params.ground_decides {
+                    GroundEvidence::Decides
+                } else {
+                    GroundEvidence::Weak
+                }
             }
             // A half-turned ground outside the image says nothing against this one.
-            (Some(_), None) => true,
-            _ => false,
+            (Some(_), None) => GroundEvidence::Silent,
+            _ => GroundEvidence::Against,
         }
     }
+}
+
+/// What the ground holes say about a reading against its half turn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum GroundEvidence {
+    /// Nothing: no ground holes, an outlet not symmetric under a half turn, or
+    /// the half-turned places outside the image.
+    Silent,
+    /// Darker than the half-turned places, but not by [`DetectorParams::ground_decides`].
+    Weak,
+    /// Clearly darker: the half turn is decided.
+    Decides,
+    /// Not darker: the reading is refused.
+    Against,
 }
 
 /// The mean of the darkest quarter of the grey values within `radius` pixels of

@@ -3,10 +3,13 @@
 //! outline, of the predicted size and orientation, fitted there with contrast and
 //! a small residual), and the outlines must tell which way round the outlet is:
 //! the neutral slot is longer than the hot one (8.7 against 7.1 mm; a 5-20R's
-//! neutral is a T, longer still). A reading whose slot outlines fit no better
-//! than the swapped ones (neutral and hot exchanged) is refused: a mirrored
-//! image, or a half turn the ground holes could not settle, would otherwise send
-//! the arm to the wrong slot. A false outlet costs far more than a missed one.
+//! neutral is a T, longer still). The ground holes, where the outlet has them,
+//! must be darker than where a half turn would put them; where they are clearly
+//! so they decide the half turn, a mirror image is never reported (the camera
+//! sees the front), and the slots only veto a reading they clearly contradict.
+//! Otherwise a reading whose slot outlines fit no better than the swapped ones
+//! (neutral and hot exchanged) is refused: it would send the arm to the wrong
+//! slot. A false outlet costs far more than a missed one.
 
 use crate::refine::{HoleShape, RefineParams, Refined, compare_outlines};
 use image::GrayImage;
@@ -27,6 +30,11 @@ pub struct VerifyParams {
     /// views): each neutral then prefers the short outline, but less than each
     /// hot one does.
     pub min_identity_gain: f64,
+    /// Where the ground holes decided the half turn, the slot outlines refuse
+    /// the reading only if they fit the swapped one better by more than this
+    /// fraction (on the Willow views, correct readings gave -0.18..0.13, a
+    /// median of 0.044: slot lengths there are weak evidence either way).
+    pub max_identity_contradiction: f64,
     /// A hole whose outline finds no opening of the refinement's contrast
     /// ([`RefineParams::min_relative_contrast`]) is looked for again at the
     /// homography's prediction with this much (relative to the face): a
@@ -36,7 +44,7 @@ pub struct VerifyParams {
 
 impl Default for VerifyParams {
     fn default() -> Self {
-        Self { min_explained: 0.1, min_identity_gain: 0.02, faint_contrast: 0.05 }
+        Self { min_explained: 0.1, min_identity_gain: 0.02, max_identity_contradiction: 0.1, faint_contrast: 0.05 }
     }
 }
 

@@ -133,6 +133,7 @@ fn a_mirrored_outlet_is_never_reported_with_holes_in_wrong_places() {
     // The same detector without the outlines' identity check: what it guards.
     let mut unchecked = DetectorParams::default();
     unchecked.verify.min_identity_gain = f64::NEG_INFINITY;
+    unchecked.verify.max_identity_contradiction = f64::INFINITY;
     let unchecked = Detector::new(template().clone(), unchecked);
     let mut swapped_without_check = 0;
     for (k, &(d, a, z, roll)) in views().iter().enumerate() {

@@ -12,6 +12,7 @@
 use anyhow::{Context, Result, bail};
 use image::{Rgb, RgbImage};
 use nalgebra::{Matrix3, Point2, Rotation3, Unit, Vector3};
+use outlet_detector::Class;
 use outlet_detector::detect::{Detector, DetectorParams};
 use outlet_protocol::camera_info::read_camera_info;
 use outlet_protocol::{CameraModel, OutletGeometry};
@@ -76,6 +77,25 @@ struct ViewOutcome {
     errors_px: Vec<f64>,
     tolerance_px: f64,
     ms: f64,
+    /// Per-hole reported standard deviation (px), template order, of a found outlet.
+    sigma_px: Vec<f64>,
+    /// Labelled holes with a candidate of their class within the tolerance: how
+    /// many holes the descriptor handed to the hashing.
+    holes_classed: usize,
+    /// Why the outlet that hashing found was refused, if it was.
+    rejected: Option<String>,
+}
+
+/// What one image gave.
+struct Evaluated {
+    found: bool,
+    correct: bool,
+    errors_px: Vec<f64>,
+    tolerance_px: f64,
+    ms: f64,
+    sigma_px: Vec<f64>,
+    holes_classed: usize,
+    rejected: Option<String>,
 }
 
 /// The first of `dirs` (the labels' own folder first) that holds `name`.
@@ -337,19 +357,32 @@ fn judge(found: &[Point2<f64>], truth: &[Point2<f64>]) -> (bool, Vec<f64>, f64) 
     (correct, errors, tolerance)
 }
 
-/// The outcome of one image: (found, correct, errors px, tolerance px, ms).
-fn evaluate(
-    detector: &Detector,
-    image: &RgbImage,
-    camera: &CameraModel,
-    truth: &[Point2<f64>],
-) -> (bool, bool, Vec<f64>, f64, f64) {
+/// The outcome of one image.
+fn evaluate(detector: &Detector, image: &RgbImage, camera: &CameraModel, truth: &[Point2<f64>]) -> Evaluated {
     let t = std::time::Instant::now();
     let report = detector.detect(image, Some(camera));
     let ms = t.elapsed().as_secs_f64() * 1e3;
+    let sigma_px = report.detection.as_ref().map(|d| d.holes.iter().map(|h| h.sigma_px).collect()).unwrap_or_default();
     let found: Option<Vec<Point2<f64>>> = report.detection.map(|d| d.holes.iter().map(|h| h.pixel).collect());
-    let (correct, errors, tolerance) = judge(found.as_deref().unwrap_or(&[]), truth);
-    (found.is_some(), correct && found.is_some(), errors, tolerance, ms)
+    let (correct, errors_px, tolerance_px) = judge(found.as_deref().unwrap_or(&[]), truth);
+    let kinds = detector.template().geometry.holes.iter().map(|h| Class::from(h.kind));
+    let holes_classed = truth
+        .iter()
+        .zip(kinds)
+        .filter(|(t, kind)| {
+            report.candidates.iter().any(|(c, class)| class == kind && (c.centre - **t).norm() <= tolerance_px)
+        })
+        .count();
+    Evaluated {
+        found: found.is_some(),
+        correct: correct && found.is_some(),
+        errors_px,
+        tolerance_px,
+        ms,
+        sigma_px,
+        holes_classed,
+        rejected: report.rejected,
+    }
 }
 
 /// The outlet's angle in the image (degrees): from the first neutral slot to its hot slot.
@@ -374,8 +407,7 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
         if !photo.calibrated {
             tracing::warn!("{}: no camera_info; views assume a 60-degree pinhole", photo.name);
         }
-        let (found, correct, errors_px, tolerance_px, ms) =
-            evaluate(detector, &photo.image, &photo.camera, &photo.holes);
+        let e = evaluate(detector, &photo.image, &photo.camera, &photo.holes);
         let base_slot = {
             let und: Vec<_> = photo
                 .holes
@@ -393,11 +425,14 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
             turn_deg: 0.0,
             outlet_angle_deg: outlet_angle_deg(&photo.holes),
             slot_px: base_slot,
-            found,
-            correct,
-            errors_px,
-            tolerance_px,
-            ms,
+            found: e.found,
+            correct: e.correct,
+            errors_px: e.errors_px,
+            tolerance_px: e.tolerance_px,
+            ms: e.ms,
+            sigma_px: e.sigma_px,
+            holes_classed: e.holes_classed,
+            rejected: e.rejected,
         });
         let mut photo_rng = rng.fork(outcomes.len() as u64);
         let mut made = 0;
@@ -408,18 +443,21 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
             made += 1;
             let image = photometric(&view.render(photo, zoom), &mut photo_rng)?;
             let truth: Vec<Point2<f64>> = photo.holes.iter().filter_map(|p| view.pixel_of(&photo.camera, *p)).collect();
-            let (found, correct, errors_px, tolerance_px, ms) = evaluate(detector, &image, &view.camera, &truth);
+            let e = evaluate(detector, &image, &view.camera, &truth);
             outcomes.push(ViewOutcome {
                 photo: photo.name.clone(),
                 view: made,
                 turn_deg,
                 outlet_angle_deg: outlet_angle_deg(&truth),
                 slot_px: slot_length_px(&truth),
-                found,
-                correct,
-                errors_px,
-                tolerance_px,
-                ms,
+                found: e.found,
+                correct: e.correct,
+                errors_px: e.errors_px,
+                tolerance_px: e.tolerance_px,
+                ms: e.ms,
+                sigma_px: e.sigma_px,
+                holes_classed: e.holes_classed,
+                rejected: e.rejected,
             });
             if made <= 3 {
                 let dir = args.out.join("views");

@@ -58,9 +58,20 @@ pub struct HashParams {
     /// affine transform; at least one more must confirm it).
     pub min_score_floor: usize,
     /// Smallest ratio of the transform's singular values at any hole: cos of the
-    /// largest off-axis angle, 0.5 = 60 degrees (the paper's views are within 40;
-    /// a chance 5-of-6 among clutter was at 0.46).
+    /// largest off-axis angle, 0.5 = 60 degrees (the paper's views are within
+    /// 40; a chance 5-of-6 among clutter was at 0.46). Measured lower on the
+    /// Willow photographs (BENCHMARKS.md): at 0.38 (68 degrees, with
+    /// [`Self::oblique_axis_ratio`]) all nine photographs and 188 of 279 views
+    /// were found against 129, but one steep, blurred view had a hole 5 px (10
+    /// sigma) off: not the default until steep views refine better.
     pub min_axis_ratio: f64,
+    /// Views more oblique than this (axis ratio; 0.5 = 60 degrees) need
+    /// [`Self::oblique_extra_holes`] matched holes more than [`Self::min_score`].
+    pub oblique_axis_ratio: f64,
+    /// 2: 6 of 6, 10 of 12. Points alone (no image) gave a chance 5-of-6 with two
+    /// clutter points between 60 and 68 degrees, where 4 of 6 and 5 of 6 are
+    /// shapes a steep enough affine map can make of clutter.
+    pub oblique_extra_holes: usize,
     /// Local scales (sqrt of the Jacobian's determinant, pixels per template unit)
     /// an outlet may have, when the caller knows them: focal length over the
     /// working distances, e.g. 525 px / (200..500 mm) = 1.05..2.6 px/mm for the
@@ -130,6 +141,8 @@ impl Default for HashParams {
             min_score_fraction: 2.0 / 3.0,
             min_score_floor: 4,
             min_axis_ratio: 0.5,
+            oblique_axis_ratio: 0.5,
+            oblique_extra_holes: 2,
             scale_range: None,
             image_size: None,
             max_scale_variation: 2.0,

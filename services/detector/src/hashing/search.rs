@@ -120,6 +120,8 @@ impl Grid {
 pub(super) struct Projection {
     pub(super) pos: [Point2<f64>; MAX_TEMPLATE_HOLES],
     pub(super) size: [f64; MAX_TEMPLATE_HOLES],
+    /// The smallest axis ratio over the holes: cos of the most oblique view.
+    pub(super) min_axis_ratio: f64,
 }
 
 /// A hypothesis that passed every check.
@@ -183,7 +185,11 @@ impl<'a> Search<'a> {
     /// or too much perspective.
     pub(super) fn project(&self, t: &Matrix3<f64>) -> Option<Projection> {
         let p = self.params;
-        let mut out = Projection { pos: [Point2::origin(); MAX_TEMPLATE_HOLES], size: [0.0; MAX_TEMPLATE_HOLES] };
+        let mut out = Projection {
+            pos: [Point2::origin(); MAX_TEMPLATE_HOLES],
+            size: [0.0; MAX_TEMPLATE_HOLES],
+            min_axis_ratio: 1.0,
+        };
         let (mut smin, mut smax) = (f64::INFINITY, 0.0f64);
         for (j, h) in self.table.points.iter().enumerate() {
             let w = t[(2, 0)] * h.x + t[(2, 1)] * h.y + t[(2, 2)];
@@ -201,10 +207,12 @@ impl<'a> Search<'a> {
                 (t[(1, 1)] - v * t[(2, 1)]) / w,
             );
             let det = jac.determinant();
-            let plausible = det > 0.0 && u.is_finite() && v.is_finite() && axis_ratio(&jac) >= p.min_axis_ratio;
+            let ratio = axis_ratio(&jac);
+            let plausible = det > 0.0 && u.is_finite() && v.is_finite() && ratio >= p.min_axis_ratio;
             if !plausible {
                 return None;
             }
+            out.min_axis_ratio = out.min_axis_ratio.min(ratio);
             let scale = det.sqrt();
             smin = smin.min(scale);
             smax = smax.max(scale);
@@ -442,6 +450,13 @@ impl<'a> Search<'a> {
                 sum += d * d;
                 score += 1;
             }
+        }
+        // A steeper view is a larger family of transforms, so more room for a
+        // coincidence: beyond the oblique limit, more holes are needed.
+        if projection.min_axis_ratio < self.params.oblique_axis_ratio
+            && score < self.min_score + self.params.oblique_extra_holes
+        {
+            return;
         }
         // A hole predicted outside the image cannot be checked: an outlet partly
         // out of view is not reported, but it still rivals other interpretations.
