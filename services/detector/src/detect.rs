@@ -411,10 +411,6 @@ impl Detector {
         // (`refined` false, a larger sigma); none there refuses the outlet below.
         let faint = RefineParams { min_relative_contrast: self.params.verify.faint_contrast, ..self.params.refine };
         let mut predicted_only = vec![false; model.len()];
-        // A homography through four holes fits them exactly: nothing checked it,
-        // and a centre taken from it may be far off (a rendered 2x1 once had
-        // both taken 4.5-7 px from their holes). Predicting needs one more.
-        let fitted = refined.iter().flatten().count();
         for (i, t) in model.iter().enumerate() {
             if refined[i].is_some() {
                 continue;
@@ -431,7 +427,6 @@ impl Detector {
                 (Some(_), Some(d)) if d.is_nan() || d > 2.0 * tolerance => continue,
                 // None found, or one pulled a little off (a dark dot beside a
                 // ground hole): the outline must show at the predicted place.
-                _ if fitted < MIN_HOLES_TO_PREDICT => continue,
                 _ => {
                     predicted_only[i] = true;
                     (predicted, outline_at(grey, predicted, &jacobian, self.outlines[i], &faint))
@@ -548,10 +543,6 @@ impl Detector {
         }
     }
 }
-
-/// Fitted holes the plane's homography needs before it may stand in for a
-/// hole's own fit: one more than the four that fix it.
-const MIN_HOLES_TO_PREDICT: usize = 5;
 
 /// What the ground holes say about a reading against its half turn.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
