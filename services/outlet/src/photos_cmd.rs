@@ -71,6 +71,13 @@ struct ViewOutcome {
     outlet_angle_deg: f64,
     /// The neutral slot's length in the view (px), from the labels.
     slot_px: f64,
+    #[serde(flatten)]
+    result: Evaluated,
+}
+
+/// What one image gave.
+#[derive(Debug, Clone, serde::Serialize)]
+struct Evaluated {
     found: bool,
     correct: bool,
     /// Per-hole distance from the label (px), template order, of a found outlet.
@@ -83,18 +90,6 @@ struct ViewOutcome {
     /// many holes the descriptor handed to the hashing.
     holes_classed: usize,
     /// Why the outlet that hashing found was refused, if it was.
-    rejected: Option<String>,
-}
-
-/// What one image gave.
-struct Evaluated {
-    found: bool,
-    correct: bool,
-    errors_px: Vec<f64>,
-    tolerance_px: f64,
-    ms: f64,
-    sigma_px: Vec<f64>,
-    holes_classed: usize,
     rejected: Option<String>,
 }
 
@@ -425,14 +420,7 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
             turn_deg: 0.0,
             outlet_angle_deg: outlet_angle_deg(&photo.holes),
             slot_px: base_slot,
-            found: e.found,
-            correct: e.correct,
-            errors_px: e.errors_px,
-            tolerance_px: e.tolerance_px,
-            ms: e.ms,
-            sigma_px: e.sigma_px,
-            holes_classed: e.holes_classed,
-            rejected: e.rejected,
+            result: e,
         });
         let mut photo_rng = rng.fork(outcomes.len() as u64);
         let mut made = 0;
@@ -450,14 +438,7 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
                 turn_deg,
                 outlet_angle_deg: outlet_angle_deg(&truth),
                 slot_px: slot_length_px(&truth),
-                found: e.found,
-                correct: e.correct,
-                errors_px: e.errors_px,
-                tolerance_px: e.tolerance_px,
-                ms: e.ms,
-                sigma_px: e.sigma_px,
-                holes_classed: e.holes_classed,
-                rejected: e.rejected,
+                result: e,
             });
             if made <= 3 {
                 let dir = args.out.join("views");
@@ -483,8 +464,8 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
 fn photo_table(outcomes: &[ViewOutcome]) -> String {
     let mut s = String::new();
     let row = |s: &mut String, label: &str, set: &[&ViewOutcome]| {
-        let found = set.iter().filter(|o| o.correct).count();
-        let wrong = set.iter().filter(|o| o.found && !o.correct).count();
+        let found = set.iter().filter(|o| o.result.correct).count();
+        let wrong = set.iter().filter(|o| o.result.found && !o.result.correct).count();
         let pct = if set.is_empty() { f64::NAN } else { 100.0 * found as f64 / set.len() as f64 };
         let _ = writeln!(s, "| {label} | {} | {found} ({pct:.0}%) | {wrong} |", set.len());
     };
@@ -511,7 +492,7 @@ fn photo_table(outcomes: &[ViewOutcome]) -> String {
         row(&mut s, &label, &set);
     }
     row(&mut s, "all", &outcomes.iter().collect::<Vec<_>>());
-    let mut ms: Vec<f64> = outcomes.iter().map(|o| o.ms).collect();
+    let mut ms: Vec<f64> = outcomes.iter().map(|o| o.result.ms).collect();
     ms.sort_by(f64::total_cmp);
     if let Some(median) = ms.get(ms.len() / 2) {
         let _ = writeln!(s, "\nmedian detection time {median:.1} ms");
