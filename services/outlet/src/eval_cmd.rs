@@ -55,6 +55,10 @@ pub struct EvalArgs {
     /// With --photos: the largest turn of a view's optical axis (degrees).
     #[arg(long, default_value_t = 25.0)]
     pub max_turn_deg: f64,
+    /// With --photos: write the first this many views of each photograph (PNG,
+    /// with its camera_info YAML) under `OUT/views`, to rerun `outlet detect` on them.
+    #[arg(long, default_value_t = 3)]
+    pub save_views: usize,
 }
 
 /// The outcome of one image.
@@ -116,6 +120,7 @@ pub fn eval(args: EvalArgs) -> Result<()> {
             template: args.template.as_deref(),
             max_turn_deg: args.max_turn_deg,
             slot_px: [8.0, 30.0],
+            save_views: args.save_views,
         });
     }
     let camera = args.camera.camera()?;

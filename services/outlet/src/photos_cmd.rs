@@ -14,7 +14,7 @@ use image::{Rgb, RgbImage};
 use nalgebra::{Matrix3, Point2, Rotation3, Unit, Vector3};
 use outlet_detector::Class;
 use outlet_detector::detect::{Detector, DetectorParams};
-use outlet_protocol::camera_info::read_camera_info;
+use outlet_protocol::camera_info::{read_camera_info, write_camera_info};
 use outlet_protocol::{CameraModel, OutletGeometry};
 use outlet_sim::rng::SimRng as Rng;
 use std::fmt::Write as _;
@@ -34,6 +34,8 @@ pub struct PhotoEvalArgs<'a> {
     pub max_turn_deg: f64,
     /// Slot lengths (px) the zoomed views are drawn between.
     pub slot_px: [f64; 2],
+    /// Views of each photograph written to `out/views` (PNG and camera_info YAML).
+    pub save_views: usize,
 }
 
 /// One labelled photograph.
@@ -71,6 +73,9 @@ struct ViewOutcome {
     outlet_angle_deg: f64,
     /// The neutral slot's length in the view (px), from the labels.
     slot_px: f64,
+    /// The angle between the face's normal and the ray to the outlet (degrees),
+    /// from the labels' homography: how obliquely the outlet is seen.
+    off_axis_deg: f64,
     #[serde(flatten)]
     result: Evaluated,
 }
@@ -91,6 +96,8 @@ struct Evaluated {
     holes_classed: usize,
     /// Why the outlet that hashing found was refused, if it was.
     rejected: Option<String>,
+    /// The labelled holes in this view (px), template order.
+    truth_px: Vec<[f64; 2]>,
 }
 
 /// The first of `dirs` (the labels' own folder first) that holds `name`.
@@ -297,6 +304,39 @@ fn slot_length_px(holes: &[Point2<f64>]) -> f64 {
     }
 }
 
+/// How obliquely the labelled outlet is seen (degrees; NaN where the labels fix no
+/// plane): the camera turned to look straight at the outlet's centre, the
+/// foreshortening of the labels' homography there, acos of the ratio of its
+/// singular values. (A normal from the homography's perspective terms would be
+/// noise: a 3 cm outlet barely shows perspective.)
+fn off_axis_deg(model: &[Point2<f64>], camera: &CameraModel, labels: &[Point2<f64>]) -> f64 {
+    let pairs: Vec<(Point2<f64>, Point2<f64>)> = model
+        .iter()
+        .zip(labels)
+        .map(|(m, p)| {
+            let r = camera.ray(*p);
+            (*m, Point2::new(r.x / r.z, r.y / r.z))
+        })
+        .collect();
+    let Some(h) = outlet_protocol::math::fit_homography(&pairs) else { return f64::NAN };
+    let n = model.len().max(1) as f64;
+    let centre = model.iter().fold(Vector3::zeros(), |a, m| a + Vector3::new(m.x, m.y, 1.0)) / n;
+    let ray = h * centre;
+    let Some(look) = Rotation3::rotation_between(&ray, &Vector3::z()) else { return f64::NAN };
+    let h = look.matrix() * h;
+    // Jacobian of (x/z, y/z) at the centre.
+    let q = h * centre;
+    let mut j = nalgebra::Matrix2::zeros();
+    for col in 0..2 {
+        let (dx, dy, dz) = (h[(0, col)], h[(1, col)], h[(2, col)]);
+        j[(0, col)] = (dx * q.z - q.x * dz) / (q.z * q.z);
+        j[(1, col)] = (dy * q.z - q.y * dz) / (q.z * q.z);
+    }
+    let sv = j.singular_values();
+    let ratio = sv.min() / sv.max();
+    if ratio.is_finite() { ratio.min(1.0).acos().to_degrees() } else { f64::NAN }
+}
+
 /// A random view of the photo: turned by at most `max_turn_deg` (any roll about
 /// the optical axis), zoomed so that the slots are `slot_px` long, with the
 /// outlet kept inside the image. None when no such view keeps it inside.
@@ -377,6 +417,7 @@ fn evaluate(detector: &Detector, image: &RgbImage, camera: &CameraModel, truth: 
         sigma_px,
         holes_classed,
         rejected: report.rejected,
+        truth_px: truth.iter().map(|p| [p.x, p.y]).collect(),
     }
 }
 
@@ -402,6 +443,7 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
         if !photo.calibrated {
             tracing::warn!("{}: no camera_info; views assume a 60-degree pinhole", photo.name);
         }
+        let model: Vec<Point2<f64>> = detector.template().geometry.holes.iter().map(|h| h.position()).collect();
         let e = evaluate(detector, &photo.image, &photo.camera, &photo.holes);
         let base_slot = {
             let und: Vec<_> = photo
@@ -420,6 +462,7 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
             turn_deg: 0.0,
             outlet_angle_deg: outlet_angle_deg(&photo.holes),
             slot_px: base_slot,
+            off_axis_deg: off_axis_deg(&model, &photo.camera, &photo.holes),
             result: e,
         });
         let mut photo_rng = rng.fork(outcomes.len() as u64);
@@ -438,12 +481,16 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
                 turn_deg,
                 outlet_angle_deg: outlet_angle_deg(&truth),
                 slot_px: slot_length_px(&truth),
+                off_axis_deg: off_axis_deg(&model, &view.camera, &truth),
                 result: e,
             });
-            if made <= 3 {
+            if made <= args.save_views {
                 let dir = args.out.join("views");
                 std::fs::create_dir_all(&dir)?;
-                image.save(dir.join(format!("{}_{made:03}.png", photo.name)))?;
+                let name = format!("{}_{made:03}", photo.name);
+                image.save(dir.join(format!("{name}.png")))?;
+                let yaml = write_camera_info(&view.camera, &name);
+                std::fs::write(dir.join(format!("{name}.yaml")), yaml)?;
             }
         }
         tracing::info!("{}: {} views", photo.name, made + 1);
@@ -486,6 +533,12 @@ fn photo_table(outcomes: &[ViewOutcome]) -> String {
         let label = if hi > 1e8 { format!("slots from {lo:.0} px") } else { format!("slots {lo:.0}-{hi:.0} px") };
         row(&mut s, &label, &set);
     }
+    for (lo, hi) in [(0.0, 40.0), (40.0, 55.0), (55.0, 65.0), (65.0, 1e9)] {
+        let set: Vec<_> = outcomes.iter().filter(|o| o.off_axis_deg >= lo && o.off_axis_deg < hi).collect();
+        let label =
+            if hi > 1e8 { format!("off-axis from {lo:.0} deg") } else { format!("off-axis {lo:.0}-{hi:.0} deg") };
+        row(&mut s, &label, &set);
+    }
     for (lo, hi) in [(0.0, 10.0), (10.0, 20.0), (20.0, 1e9)] {
         let set: Vec<_> = outcomes.iter().filter(|o| o.view > 0 && o.turn_deg >= lo && o.turn_deg < hi).collect();
         let label = if hi > 1e8 { format!("turned from {lo:.0} deg") } else { format!("turned {lo:.0}-{hi:.0} deg") };
@@ -518,6 +571,32 @@ mod tests {
     }
 
     #[test]
+    fn the_off_axis_angle_is_the_one_the_outlet_was_seen_at() {
+        // A 2x1 outlet 0.4 m away, off the optical axis, its face turned by a known
+        // angle from the ray to it, seen through a distorting lens.
+        let photo = photo_with(Vec::new());
+        let model: Vec<Point2<f64>> =
+            OutletGeometry::builtin("2x1").expect("2x1").holes.iter().map(|h| h.position()).collect();
+        let centre = Vector3::new(0.06, -0.03, 0.4);
+        for degrees in [0.0f64, 30.0, 50.0, 64.0] {
+            // Turned about an axis across the ray, from facing the camera.
+            let ray = centre.normalize();
+            let facing = Rotation3::rotation_between(&Vector3::z(), &-ray).expect("rotation");
+            let across = Unit::new_normalize(ray.cross(&Vector3::y()));
+            let pose = Rotation3::from_axis_angle(&across, degrees.to_radians()) * facing;
+            let labels: Vec<Point2<f64>> = model
+                .iter()
+                .map(|m| {
+                    let p = centre + pose * Vector3::new(m.x, m.y, 0.0) * 1e-3;
+                    photo.camera.project(&nalgebra::Point3::from(p)).expect("in front")
+                })
+                .collect();
+            let got = off_axis_deg(&model, &photo.camera, &labels);
+            assert!((got - degrees).abs() < 1.0, "{degrees} degrees measured as {got:.2}");
+        }
+    }
+
+    #[test]
     fn a_view_maps_a_photo_pixel_where_its_ray_goes() {
         // A ray turned by the view's rotation lands on the view's pixel of that ray.
         let photo = photo_with(vec![Point2::new(300.0, 200.0), Point2::new(340.0, 202.0), Point2::new(320.0, 240.0)]);
@@ -545,6 +624,7 @@ mod tests {
             template: None,
             max_turn_deg: 25.0,
             slot_px: [8.0, 30.0],
+            save_views: 0,
         };
         let mut rng = Rng::new(7);
         for _ in 0..20 {
