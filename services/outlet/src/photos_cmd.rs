@@ -310,14 +310,8 @@ fn slot_length_px(holes: &[Point2<f64>]) -> f64 {
 /// singular values. (A normal from the homography's perspective terms would be
 /// noise: a 3 cm outlet barely shows perspective.)
 fn off_axis_deg(model: &[Point2<f64>], camera: &CameraModel, labels: &[Point2<f64>]) -> f64 {
-    let pairs: Vec<(Point2<f64>, Point2<f64>)> = model
-        .iter()
-        .zip(labels)
-        .map(|(m, p)| {
-            let r = camera.ray(*p);
-            (*m, Point2::new(r.x / r.z, r.y / r.z))
-        })
-        .collect();
+    let pairs: Vec<(Point2<f64>, Point2<f64>)> =
+        model.iter().zip(labels).map(|(m, p)| (*m, Point2::from(camera.undistort_pixel(*p)))).collect();
     let Some(h) = outlet_protocol::math::fit_homography(&pairs) else { return f64::NAN };
     let n = model.len().max(1) as f64;
     let centre = model.iter().fold(Vector3::zeros(), |a, m| a + Vector3::new(m.x, m.y, 1.0)) / n;
