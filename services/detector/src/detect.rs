@@ -50,6 +50,17 @@ pub struct DetectorParams {
     /// know holes up to about 50 px of slot pitch, which an HD camera passes at
     /// 25 cm (0 = never).
     pub pyramid_min_px: u32,
+    /// A hole whose centre could not be fitted is taken from the homography of
+    /// the fitted holes only when at least this many were fitted. Four fix a
+    /// homography exactly and check nothing; the predicted hole's outline must
+    /// still show at the predicted place. Requiring five changed nothing on the
+    /// Willow views (0 and 1 wrong either way, 2 of 279 fewer found) and lost the
+    /// demo's frame 185, so four.
+    pub min_fitted_for_prediction: usize,
+    /// A hole taken from the homography is off by the real outlet's departure
+    /// from the nominal geometry (mm, per axis): on the Willow photographs the
+    /// labelled holes leave 0.48-0.60 mm RMS from the contract's geometry.
+    pub predicted_sigma_mm: f64,
 }
 
 impl Default for DetectorParams {
@@ -68,6 +79,8 @@ impl Default for DetectorParams {
             ground_contrast: 0.05,
             ground_decides: 0.2,
             pyramid_min_px: 1280,
+            min_fitted_for_prediction: 4,
+            predicted_sigma_mm: 0.5,
         }
     }
 }
@@ -379,65 +392,70 @@ impl Detector {
         // Pixels per mm along the outlet's least foreshortened direction.
         let scale = local_jacobian(homography, lens, &centroid(&model)).ok_or_else(degenerate)?.singular_values().max();
         let tolerance = self.params.max_plane_px.max(self.params.max_plane_mm * scale);
-        let h = loop {
-            let pairs: Vec<(Point2<f64>, Point2<f64>)> =
-                model.iter().zip(&refined).filter_map(|(t, r)| r.map(|r| (*t, lens.undistort(r)))).collect();
-            if pairs.len() < min_holes {
-                return Err(format!("only {} holes lie on one plane", pairs.len()));
-            }
-            let h = fit_homography(&pairs).ok_or("no homography through the refined holes")?;
-            let worst = model
-                .iter()
-                .zip(&refined)
-                .enumerate()
-                .filter_map(|(i, (t, r))| {
-                    let r = lens.undistort((*r)?);
-                    apply(&h, t).map(|q| (i, (q - r).norm()))
-                })
-                .max_by(|a, b| a.1.total_cmp(&b.1));
-            match worst {
-                Some((i, e)) if e > tolerance => {
-                    tracing::debug!(hole = i, error_px = e, tolerance, "hole off the plane: dropped");
-                    refined[i] = None;
-                }
-                _ => break h,
-            }
-        };
+        let h = plane_fit(&model, &mut refined, lens, tolerance, min_holes)?;
         // A hole not found (faint: washed out, in shadow; or its first guess too
         // far off) is looked for once more where the seen holes' homography puts
         // it, with less contrast; it counts only if it lands on that plane too.
-        // Failing that, its outline is checked right at that place: an opening of
-        // its shape there is a hole seen, whose centre is the homography's
-        // (`refined` false, a larger sigma); none there refuses the outlet below.
         let faint = RefineParams { min_relative_contrast: self.params.verify.faint_contrast, ..self.params.refine };
-        let mut predicted_only = vec![false; model.len()];
+        let mut wants_prediction = vec![false; model.len()];
+        let mut faint_found = false;
         for (i, t) in model.iter().enumerate() {
             if refined[i].is_some() {
                 continue;
             }
             let Some(q) = apply(&h, t) else { continue };
-            let predicted = lens.distort(q);
             let Some(jacobian) = local_jacobian(&h, lens, t) else { continue };
-            let moved = refine_hole(grey, predicted, &jacobian, self.outlines[i], &faint);
-            let off = moved.map(|fit| (q - lens.undistort(fit.centre)).norm());
-            let (centre, fit) = match (moved, off) {
-                (Some(fit), Some(d)) if d <= tolerance => (fit.centre, Some(fit)),
+            let moved = refine_hole(grey, lens.distort(q), &jacobian, self.outlines[i], &faint);
+            match moved.map(|fit| (fit, (q - lens.undistort(fit.centre)).norm())) {
+                Some((fit, d)) if d <= tolerance => {
+                    tracing::debug!(hole = i, "faint hole fitted where the other holes put it");
+                    refined[i] = Some(fit.centre);
+                    fits[i] = Some(Refined { sigma_px: fit.sigma_px.max(tolerance / 2.0), ..fit });
+                    jacobians[i] = jacobian;
+                    faint_found = true;
+                }
                 // An opening clearly beside the predicted place: the hole may be
                 // there, or the outlet not where the homography says; not seen.
-                (Some(_), Some(d)) if d.is_nan() || d > 2.0 * tolerance => continue,
+                Some((_, d)) if d.is_nan() || d > 2.0 * tolerance => {}
                 // None found, or one pulled a little off (a dark dot beside a
                 // ground hole): the outline must show at the predicted place.
-                _ => {
-                    predicted_only[i] = true;
-                    (predicted, outline_at(grey, predicted, &jacobian, self.outlines[i], &faint))
-                }
-            };
-            if let Some(fit) = fit {
-                tracing::debug!(hole = i, predicted_only = predicted_only[i], "hole seen where the other holes put it");
-                refined[i] = Some(centre);
-                fits[i] = Some(Refined { sigma_px: fit.sigma_px.max(tolerance / 2.0), ..fit });
-                jacobians[i] = jacobian;
+                _ => wants_prediction[i] = true,
             }
+        }
+        // The faint holes join the fit and are checked by it (a faint fit off the
+        // plane is dropped); any centre predicted below comes from this fit.
+        let h = if faint_found { plane_fit(&model, &mut refined, lens, tolerance, min_holes)? } else { h };
+        // A centre taken from the homography is only as good as the fit it comes
+        // from: it takes at least `min_fitted_for_prediction` fitted holes. Its outline
+        // must show right there (`refined` false); its sigma carries the fitted
+        // holes' error carried through the homography and the real outlet's
+        // departure from the nominal geometry.
+        let fitted: Vec<(Point2<f64>, Point2<f64>, f64)> = model
+            .iter()
+            .zip(&refined)
+            .zip(&fits)
+            .filter_map(|((t, r), f)| Some((*t, lens.undistort((*r)?), f.as_ref()?.sigma_px)))
+            .collect();
+        let mut predicted_only = vec![false; model.len()];
+        for (i, t) in model.iter().enumerate() {
+            if refined[i].is_some() || !wants_prediction[i] || fitted.len() < self.params.min_fitted_for_prediction {
+                continue;
+            }
+            let Some(q) = apply(&h, t) else { continue };
+            let predicted = lens.distort(q);
+            let Some(jacobian) = local_jacobian(&h, lens, t) else { continue };
+            let Some(fit) = outline_at(grey, predicted, &jacobian, self.outlines[i], &faint) else { continue };
+            let carried = prediction_sigma(&fitted, t).unwrap_or(f64::INFINITY);
+            let nominal = self.params.predicted_sigma_mm * jacobian.singular_values().max();
+            let sigma_px = (fit.sigma_px.powi(2) + carried.powi(2) + nominal.powi(2)).sqrt().max(tolerance / 2.0);
+            if !sigma_px.is_finite() {
+                continue;
+            }
+            tracing::debug!(hole = i, sigma_px, "hole seen where the fitted holes put it");
+            predicted_only[i] = true;
+            refined[i] = Some(predicted);
+            fits[i] = Some(Refined { sigma_px, ..fit });
+            jacobians[i] = jacobian;
         }
         // Every hole must have been seen: a hole predicted from the others may lie
         // on the bare plate (the arm would go there), so the outlet is refused.
@@ -446,6 +464,10 @@ impl Detector {
             let kind = hole.kind.as_str();
             let (Some(pixel), Some(fit)) = (r, fits[i]) else {
                 return Err(match fits[i] {
+                    None if wants_prediction[i] && fitted.len() < self.params.min_fitted_for_prediction => format!(
+                        "hole {i} ({kind}): not fitted, and {} fitted holes are too few to predict it",
+                        fitted.len()
+                    ),
                     None => format!("hole {i} ({kind}): no opening of its outline found where the homography puts it"),
                     Some(_) => format!("hole {i} ({kind}): its opening is off the outlet's plane"),
                 });
@@ -542,6 +564,65 @@ impl Detector {
             _ => GroundEvidence::Against,
         }
     }
+}
+
+/// The homography through the fitted holes (`refined`, template order), after
+/// dropping one by one, worst first, the holes further than `tolerance` pixels
+/// from it: a fit caught by a glint or a dark spot. `Err` when fewer than
+/// `min_holes` remain.
+fn plane_fit(
+    model: &[Point2<f64>],
+    refined: &mut [Option<Point2<f64>>],
+    lens: &Lens,
+    tolerance: f64,
+    min_holes: usize,
+) -> Result<Matrix3<f64>, String> {
+    loop {
+        let pairs: Vec<(Point2<f64>, Point2<f64>)> =
+            model.iter().zip(refined.iter()).filter_map(|(t, r)| r.map(|r| (*t, lens.undistort(r)))).collect();
+        if pairs.len() < min_holes {
+            return Err(format!("only {} holes lie on one plane", pairs.len()));
+        }
+        let h = fit_homography(&pairs).ok_or("no homography through the refined holes")?;
+        let worst = model
+            .iter()
+            .zip(refined.iter())
+            .enumerate()
+            .filter_map(|(i, (t, r))| {
+                let r = lens.undistort((*r)?);
+                apply(&h, t).map(|q| (i, (q - r).norm()))
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        match worst {
+            Some((i, e)) if e > tolerance || e.is_nan() => {
+                tracing::debug!(hole = i, error_px = e, tolerance, "hole off the plane: dropped");
+                refined[i] = None;
+            }
+            _ => return Ok(h),
+        }
+    }
+}
+
+/// Standard deviation per axis (pixels) of the point the homography through
+/// `fitted` (template mm, undistorted pixel, that pixel's sigma) puts `t` at,
+/// from the fitted pixels' own errors carried through the fit (numerically:
+/// each pixel moved in turn). Large where `t` lies far outside the fitted holes.
+fn prediction_sigma(fitted: &[(Point2<f64>, Point2<f64>, f64)], t: &Point2<f64>) -> Option<f64> {
+    let pairs: Vec<(Point2<f64>, Point2<f64>)> = fitted.iter().map(|(m, p, _)| (*m, *p)).collect();
+    let base = apply(&fit_homography(&pairs)?, t)?;
+    let step = 0.01;
+    let mut variance = 0.0;
+    for (k, (_, _, sigma)) in fitted.iter().enumerate() {
+        for axis in 0..2 {
+            let mut moved = pairs.clone();
+            moved[k].1[axis] += step;
+            let q = apply(&fit_homography(&moved)?, t)?;
+            variance += ((q - base) / step).norm_squared() * sigma * sigma;
+        }
+    }
+    // Per axis: half the trace.
+    let sigma = (variance / 2.0).sqrt();
+    sigma.is_finite().then_some(sigma)
 }
 
 /// What the ground holes say about a reading against its half turn.
@@ -657,6 +738,51 @@ pub use outlet_protocol::math::fit_homography;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 2x1's six holes (template mm) seen at 3 px per mm, shifted to (300, 200).
+    fn seen_2x1() -> (Vec<Point2<f64>>, Vec<Point2<f64>>) {
+        let model: Vec<Point2<f64>> =
+            outlet_protocol::OutletGeometry::us_2x1().holes.iter().map(|h| h.position()).collect();
+        let image = model.iter().map(|t| Point2::new(300.0 + 3.0 * t.x, 200.0 + 3.0 * t.y)).collect();
+        (model, image)
+    }
+
+    #[test]
+    fn the_plane_fit_drops_a_hole_off_the_plane_and_refuses_when_too_few_remain() {
+        let (model, image) = seen_2x1();
+        let lens = Lens { camera: None };
+        let mut refined: Vec<Option<Point2<f64>>> = image.iter().map(|p| Some(*p)).collect();
+        refined[1] = Some(image[1] + Vector2::new(6.0, -2.0));
+        let h = plane_fit(&model, &mut refined, &lens, 1.0, 4).expect("five holes remain");
+        assert_eq!(refined[1], None, "the moved hole is dropped");
+        assert!(refined.iter().filter(|r| r.is_some()).count() == 5);
+        let q = apply(&h, &model[1]).expect("finite");
+        assert!((q - image[1]).norm() < 1e-6, "the fit puts the dropped hole back at {q}");
+        let mut refined: Vec<Option<Point2<f64>>> = image.iter().map(|p| Some(*p)).collect();
+        refined[1] = Some(image[1] + Vector2::new(6.0, -2.0));
+        let why = plane_fit(&model, &mut refined, &lens, 1.0, 6).expect_err("only five on the plane");
+        assert!(why.contains("only 5 holes"), "{why}");
+    }
+
+    #[test]
+    fn a_prediction_from_four_holes_is_less_sure_than_one_from_five() {
+        let (model, image) = seen_2x1();
+        let with = |ks: &[usize]| -> Vec<(Point2<f64>, Point2<f64>, f64)> {
+            ks.iter().map(|&k| (model[k], image[k], 0.2)).collect()
+        };
+        // Hole 5 (the lower ground) from the upper receptacle and the lower slots.
+        let four = prediction_sigma(&with(&[0, 1, 3, 4]), &model[5]).expect("four");
+        let five = prediction_sigma(&with(&[0, 1, 2, 3, 4]), &model[5]).expect("five");
+        assert!(four.is_finite() && five.is_finite());
+        assert!(four > five, "four holes {four:.3} px, five {five:.3} px");
+        // Extrapolating far beyond the fitted holes is less sure than between them.
+        let far = prediction_sigma(&with(&[0, 1, 2, 3, 4]), &Point2::new(0.0, 120.0)).expect("far");
+        assert!(far > 2.0 * five, "far {far:.3} px, near {five:.3} px");
+        // Sure pixels make a sure prediction: the sigma scales with theirs.
+        let sure: Vec<_> = with(&[0, 1, 2, 3, 4]).into_iter().map(|(m, p, _)| (m, p, 0.02)).collect();
+        let sure = prediction_sigma(&sure, &model[5]).expect("sure");
+        assert!((sure * 10.0 - five).abs() < 1e-3 * five, "{sure} against {five}");
+    }
 
     #[test]
     fn the_dark_quartile_sees_a_hole_and_refuses_discs_it_cannot_read() {
