@@ -58,7 +58,7 @@ pub struct PoseConfig {
     /// How far a receptacle face may stand from the template's nominal face
     /// offset (mm, one sigma; CONTRACT: 5.0 nominal, real faces differ by a few
     /// mm). It widens the plane's distance in the covariance. 0: the nominal
-    /// is exact (the simulated camera's default scenes).
+    /// is exact (true only of simulated scenes). Default: [`crate::ModelError::REAL_STEREO`].
     pub face_offset_sigma_mm: f64,
     /// A calibration bias of the stereo pair not in the plane fit's own
     /// covariance: on the wall normal (degrees, one sigma) ...
@@ -118,9 +118,9 @@ impl Default for PoseConfig {
             plane_wait_ms: 50.0,
             pixel_sigma: 0.25,
             max_rms_px: 2.0,
-            face_offset_sigma_mm: 0.0,
-            plane_tilt_sigma_deg: 0.0,
-            plane_distance_sigma_mm: 0.0,
+            face_offset_sigma_mm: crate::ModelError::REAL_STEREO.face_offset_sigma_mm,
+            plane_tilt_sigma_deg: crate::ModelError::REAL_STEREO.plane_tilt_sigma_deg,
+            plane_distance_sigma_mm: crate::ModelError::REAL_STEREO.plane_distance_sigma_mm,
         }
     }
 }

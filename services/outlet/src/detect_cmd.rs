@@ -37,6 +37,11 @@ pub struct DetectArgs {
     /// Stereo cloud of the wall (PLY, camera frame, metres).
     #[arg(long)]
     pub points: Option<PathBuf>,
+    /// With a cloud: what its plane cannot know, one sigma each, "FACE_MM,TILT_DEG,DISTANCE_MM":
+    /// the receptacle face's offset from the nominal 5.0 mm and the stereo pair's bias on the
+    /// wall's normal and distance. "0,0,0" trusts the cloud and the nominal face fully.
+    #[arg(long, default_value = "1.15,0.48,1.32", value_parser = outlet::ModelError::parse)]
+    pub model_error: outlet::ModelError,
     /// One JSON object per image on stdout.
     #[arg(long)]
     pub json: bool,
@@ -146,7 +151,7 @@ pub fn detect(args: DetectArgs) -> Result<()> {
     let several = jobs.len() > 1;
     for job in &jobs {
         let record = match job {
-            Ok(job) => match run_one(job, &mut detectors, args.annotate.as_deref(), several) {
+            Ok(job) => match run_one(job, &mut detectors, args.annotate.as_deref(), several, &args.model_error) {
                 Ok(record) => {
                     processed += 1;
                     record
@@ -168,7 +173,13 @@ pub fn detect(args: DetectArgs) -> Result<()> {
     Ok(())
 }
 
-fn run_one(job: &Job, detectors: &mut Detectors, annotate: Option<&Path>, several: bool) -> Result<Value> {
+fn run_one(
+    job: &Job,
+    detectors: &mut Detectors,
+    annotate: Option<&Path>,
+    several: bool,
+    model_error: &outlet::ModelError,
+) -> Result<Value> {
     let camera: Option<CameraModel> = job.camera.as_deref().map(read_camera_info).transpose()?;
     let image = image::open(&job.image).with_context(|| format!("reading image {}", job.image.display()))?.to_rgb8();
     if image.width() == 0 || image.height() == 0 {
@@ -203,13 +214,19 @@ fn run_one(job: &Job, detectors: &mut Detectors, annotate: Option<&Path>, severa
             .with_context(|| format!("writing {}", out.display()))?;
     }
     let t = Instant::now();
-    // An ambiguous mono pose is no pose: positions and pose null, and why.
+    // An ambiguous mono pose, or a plane that cannot explain the holes, is no
+    // pose: positions and pose null, and why.
     let mut pose_status = None;
     let pose = match (&report.detection, &camera) {
-        (Some(d), Some(camera)) => match solve_pose(d, detector, camera, &job.wall) {
+        (Some(d), Some(camera)) => match solve_pose(d, detector, camera, &job.wall, model_error) {
             Ok(p) => Some(p),
             Err(e) if matches!(e.downcast_ref::<PoseError>(), Some(PoseError::Ambiguous { .. })) => {
                 pose_status = Some("ambiguous");
+                None
+            }
+            // The stereo plane cannot explain the holes: no pose, as the sidecar says.
+            Err(e) if matches!(e.downcast_ref::<PoseError>(), Some(PoseError::PlaneDisagrees { .. })) => {
+                pose_status = Some("plane_mismatch");
                 None
             }
             Err(e) => return Err(e),
@@ -281,7 +298,13 @@ const HOLE_PIXEL_SIGMA: f64 = 0.25;
 /// Uncertainty of a wall normal given without one (radians): 1 degree.
 const GIVEN_NORMAL_SIGMA_RAD: f64 = 0.017;
 
-fn solve_pose(detection: &Detection, detector: &Detector, camera: &CameraModel, wall: &Wall) -> Result<OutletPose> {
+fn solve_pose(
+    detection: &Detection,
+    detector: &Detector,
+    camera: &CameraModel,
+    wall: &Wall,
+    model_error: &outlet::ModelError,
+) -> Result<OutletPose> {
     let geometry = &detector.template().geometry;
     let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
     let pixels: Vec<Point2<f64>> = detection.holes.iter().map(|h| h.pixel).collect();
@@ -300,7 +323,7 @@ fn solve_pose(detection: &Detection, detector: &Detector, camera: &CameraModel, 
             let cloud = read_ply(path)?;
             let plane = fit_wall_plane(&cloud, &PlaneParams::default())
                 .with_context(|| format!("fitting the wall to {}", path.display()))?;
-            let measurement = outlet::plane_measurement(&plane, geometry);
+            let measurement = outlet::plane_measurement(&plane, geometry, model_error);
             solve_plane(&obs, &measurement)?
         }
         Wall::Unknown => solve_mono(&obs)?,

@@ -40,6 +40,10 @@ pub struct EvalArgs {
     /// `--count` frames per scenario, default 150).
     #[arg(long)]
     pub nees: bool,
+    /// Plane mode: what the stereo plane cannot know, "FACE_MM,TILT_DEG,DISTANCE_MM"
+    /// (as `outlet detect --model-error`); "0,0,0" for exact faces and an unbiased cloud.
+    #[arg(long, default_value = "1.15,0.48,1.32", value_parser = outlet::ModelError::parse)]
+    pub model_error: outlet::ModelError,
     /// Evaluate on the labelled photographs of this folder (`*.labels.json`, as
     /// `outlet train` takes them; `camera.yaml` optional) and on turned and zoomed
     /// views of each, instead of rendered scenarios. Repeat it to keep labels in
@@ -240,7 +244,10 @@ fn evaluate_one(
         }
     }
     let pose_mm = match (&report.detection, correct) {
-        (Some(d), true) => pose_errors(d, detector, camera, &frame, &scene, index, &errors_px),
+        (Some(d), true) => {
+            let view = RenderedView { frame: &frame, scene: &scene, index };
+            pose_errors(d, detector, camera, &view, &errors_px, &args.model_error)
+        }
         _ => PoseErrors::default(),
     };
     let view = truth.view.unwrap_or(outlet_protocol::truth::ViewJson {
@@ -269,17 +276,24 @@ fn evaluate_one(
 /// Wall normal noise of the `normal` mode's evaluation (radians): 1 degree.
 const NORMAL_NOISE_RAD: f64 = 0.017;
 
+/// One rendered view: its frame, its scene and its index in the scenario.
+struct RenderedView<'a> {
+    frame: &'a outlet_sim::RenderedFrame,
+    scene: &'a outlet_sim::Scene,
+    index: usize,
+}
+
 fn pose_errors(
     detection: &outlet_detector::detect::Detection,
     detector: &Detector,
     camera: &outlet_protocol::CameraModel,
-    frame: &outlet_sim::RenderedFrame,
-    scene: &outlet_sim::Scene,
-    index: usize,
+    view: &RenderedView,
     errors_px: &[f64],
+    model_error: &outlet::ModelError,
 ) -> PoseErrors {
     use nalgebra::{Point2, Point3, Vector3};
     use outlet_pose::{Observations, cramer_rao, solve_mono, solve_normal, solve_plane};
+    let RenderedView { frame, scene, index } = *view;
     let geometry = &detector.template().geometry;
     let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
     let pixels: Vec<Point2<f64>> = detection.holes.iter().map(|h| h.pixel).collect();
@@ -302,7 +316,7 @@ fn pose_errors(
         out.normal = errors(&p.holes_cam_m);
     }
     if let Ok(plane) = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default()) {
-        let measurement = outlet::plane_measurement(&plane, geometry);
+        let measurement = outlet::plane_measurement(&plane, geometry, model_error);
         if let Ok(p) = solve_plane(&obs, &measurement) {
             out.plane = errors(&p.holes_cam_m);
         }

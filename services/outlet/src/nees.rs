@@ -20,12 +20,6 @@ pub const NEES_HARD_LIMIT: f64 = 25.0;
 /// Wall normal noise of the `normal` mode (radians): 1 degree, as `outlet eval`.
 pub const NORMAL_NOISE_RAD: f64 = 0.017;
 
-/// The model error of the realistic stereo scenarios (rs_*), as the pose would
-/// be configured for it: face offset, calibration tilt and distance, one sigma.
-pub const REALISTIC_FACE_SIGMA_M: f64 = 1.15e-3;
-pub const REALISTIC_TILT_SIGMA_RAD: f64 = 0.48 * std::f64::consts::PI / 180.0;
-pub const REALISTIC_DISTANCE_SIGMA_M: f64 = 1.32e-3;
-
 /// The pose modes evaluated, in table order.
 pub const MODES: [&str; 3] = ["plane", "normal", "mono"];
 
@@ -165,6 +159,7 @@ pub fn evaluate_frame(
     detectors: &HashMap<&str, Detector>,
     tolerance_px: f64,
     pixel_sigma: f64,
+    model_error: &outlet::ModelError,
 ) -> Result<()> {
     let scene = sample_scene(scenario, seed, index, camera)?;
     let frame = render_frame(&scene, "nees");
@@ -253,19 +248,7 @@ pub fn evaluate_frame(
     let plane = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default());
     match plane {
         Ok(plane) => {
-            let measurement = outlet::plane_measurement(&plane, &geometry);
-            // Realistic stereo: the pose configured with that stereo's model error
-            // (pose.face_offset_sigma_mm etc.): faces 3-7 mm ahead of the wall
-            // (uniform: 1.15 mm), a bias of 0.3-1 degree (0.48 per axis) and
-            // 0.5-2 mm (RMS 1.32 mm).
-            let measurement = match scenario.starts_with(outlet_sim::REALISTIC_STEREO_PREFIX) {
-                true => measurement.with_model_error(
-                    REALISTIC_FACE_SIGMA_M,
-                    REALISTIC_TILT_SIGMA_RAD,
-                    REALISTIC_DISTANCE_SIGMA_M,
-                ),
-                false => measurement,
-            };
+            let measurement = outlet::plane_measurement(&plane, &geometry, model_error);
             add("plane", solve_plane(&obs, &measurement));
         }
         Err(_) => add("plane", Err(PoseError::BadPlane)),
@@ -323,6 +306,7 @@ pub fn eval_nees(args: &crate::eval_cmd::EvalArgs) -> Result<()> {
                         &detectors,
                         args.tolerance_px,
                         DEFAULT_PIXEL_SIGMA,
+                        &args.model_error,
                     ) {
                         tracing::warn!("{scenario} #{index}: {e:#}");
                     }

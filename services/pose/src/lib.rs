@@ -73,7 +73,20 @@ pub enum PoseError {
          ambiguous, the outlet is too small or seen too squarely"
     )]
     Ambiguous { best_cost: f64, other_cost: f64 },
+    #[error(
+        "the holes put their plane {chi2:.1} (chi-square, 3 degrees of freedom) from the stereo plane's \
+         measurement: not the outlet's wall, or a wrong hole"
+    )]
+    PlaneDisagrees { chi2: f64 },
 }
+
+/// The most a plane-mode fit may leave in the plane's own residual (whitened
+/// normal and distance, chi-square with 3 degrees of freedom; 21.1 is its
+/// 99.99% point). The plane is a prior, not a hard constraint: with honest
+/// error bars on a real stereo plane (millimetres, tenths of a degree) the
+/// pixels could otherwise pull the outlet onto a wall 5 cm away and still
+/// fit, so a pose that moves that far from the plane is refused instead.
+pub const MAX_PLANE_DISAGREEMENT: f64 = 21.1;
 
 /// The holes as detected: model positions and image pixels.
 #[derive(Debug, Clone, Copy)]
@@ -392,6 +405,10 @@ pub fn solve_plane(obs: &Observations, plane: &PlaneMeasurement) -> Result<Outle
     let (holes_cam_m, rms_px) = holes_and_rms(&fit.pose, &rays, obs.camera, obs.pixels, &kept);
     if !holes_cam_m.iter().all(in_front) {
         return Err(PoseError::BehindCamera);
+    }
+    let chi2 = lm::cost(&rays, &fit.pose, Some(&prior)) - lm::cost(&rays, &fit.pose, None);
+    if chi2.is_nan() || chi2 > MAX_PLANE_DISAGREEMENT {
+        return Err(PoseError::PlaneDisagrees { chi2 });
     }
     // The plane fixes three of the six parameters.
     let factor = robust::variance_factor(&rays, &fit.pose, &kept, 3);

@@ -268,3 +268,28 @@ fn degenerate_inputs_give_clear_errors_never_nan() {
         assert!(s.covariances.iter().all(|c| c.iter().all(|v| v.is_finite())));
     }
 }
+
+#[test]
+fn a_stereo_plane_of_another_wall_is_refused_even_with_wide_priors() {
+    // Error bars as wide as real stereo needs (a face 1.15 mm, the plane 0.48
+    // degrees and 1.32 mm uncertain) leave the pixels free to pull the pose off
+    // the measured plane; a wall 5 cm behind the outlet must not be absorbed.
+    let cam = camera();
+    let m = model("2x1");
+    let truth = pose(0.3, 20.0, 30.0, 5.0);
+    let px = pixels(&truth, &m, &cam);
+    let obs = Observations { model_mm: &m, pixels: &px, camera: &cam, pixel_sigma: 0.2, pixel_sigmas: None };
+    let real = |p: PlaneMeasurement| p.with_model_error(1.15e-3, 0.48f64.to_radians(), 1.32e-3);
+    let right = real(wall(&truth));
+    let sol = solve_plane(&obs, &right).expect("the outlet's own wall");
+    assert!(max_error(&sol, &truth, &m) < 2e-4, "{}", max_error(&sol, &truth, &m));
+    let behind = real(PlaneMeasurement { distance_m: right.distance_m + 0.05, ..wall(&truth) });
+    match solve_plane(&obs, &behind) {
+        Err(PoseError::PlaneDisagrees { chi2 }) => assert!(chi2 > outlet_pose::MAX_PLANE_DISAGREEMENT, "{chi2}"),
+        other => panic!("a wall 5 cm behind the outlet gave {other:?}"),
+    }
+    // A plane turned 5 degrees (about 7 sigma of the prior) is refused as well.
+    let turned = Rotation3::from_axis_angle(&Vector3::x_axis(), 5f64.to_radians()) * (truth.rotation * Vector3::z());
+    let tilted = real(PlaneMeasurement::new(turned, right.distance_m, 0.01, 0.0005, 0.005));
+    assert!(matches!(solve_plane(&obs, &tilted), Err(PoseError::PlaneDisagrees { .. })));
+}

@@ -211,7 +211,12 @@ fn solve(
                     );
                     refused(Mode::Plane, pose_status::PLANE_MISMATCH)
                 }
-                Err(e @ (PoseError::BehindCamera | PoseError::GrazingNormal { .. } | PoseError::BadPlane)) => {
+                Err(
+                    e @ (PoseError::BehindCamera
+                    | PoseError::GrazingNormal { .. }
+                    | PoseError::BadPlane
+                    | PoseError::PlaneDisagrees { .. }),
+                ) => {
                     tracing::warn!(frame = d.frame_id, plane_frame = p.frame_id, "{e}: no pose (plane_mismatch)");
                     refused(Mode::Plane, pose_status::PLANE_MISMATCH)
                 }

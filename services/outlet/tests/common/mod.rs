@@ -16,7 +16,12 @@ impl Services {
                     .args(["--domain", domain])
                     .args(*a)
                     .stdout(Stdio::null())
-                    .stderr(Stdio::null())
+                    // OUTLET_TEST_LOGS=1 shows the services' logs when a test fails.
+                    .stderr(if std::env::var_os("OUTLET_TEST_LOGS").is_some() {
+                        Stdio::inherit()
+                    } else {
+                        Stdio::null()
+                    })
                     .spawn()?,
             );
         }
