@@ -11,6 +11,7 @@ mod render_cmd;
 mod serve;
 mod soak;
 mod status;
+mod trials;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -44,6 +45,8 @@ enum Command {
     Demo(demo::DemoArgs),
     /// A live view of the running services: channel rates, latencies, rejected inputs.
     Status(status::StatusArgs),
+    /// Plug-in success over simulated approaches: the sidecar, a controller and a strict judge.
+    Trials(trials::TrialsArgs),
 }
 
 fn main() -> ExitCode {
@@ -63,6 +66,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo::demo(args),
         Command::Record(args) => record::record(args),
         Command::Replay(args) => record::replay(args),
+        Command::Trials(args) => trials::trials(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

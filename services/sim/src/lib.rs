@@ -8,6 +8,7 @@
 //! assert_eq!(frame.truth.holes.len(), 6);
 //! ```
 
+pub mod approach;
 pub mod cloud;
 pub mod render;
 pub mod rng;
