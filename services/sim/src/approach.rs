@@ -11,12 +11,21 @@ use outlet_protocol::CameraModel;
 
 /// `scene` seen by a camera at `camera_in_outlet` (the camera frame to the
 /// outlet frame, metres), with `noise_seed` for the sensor noise and the cloud.
-/// The light keeps its place relative to the wall as `scene` had it.
+/// The light keeps its place relative to the wall as `scene` had it; a
+/// realistic stereo bias keeps its error at the outlet.
 pub fn seen_from(scene: &Scene, camera_in_outlet: &Isometry3<f64>, noise_seed: u64) -> Scene {
     let light_in_outlet = scene.pose.inverse_transform_point(&scene.light.position_cam_m);
     let pose = camera_in_outlet.inverse();
     let mut moved = scene.clone();
     moved.light.position_cam_m = pose * light_in_outlet;
+    // A realistic pair's bias turns about the outlet, so that its offset alone
+    // sets the error there (`StereoModel::realistic`): keep it about the outlet
+    // wherever the camera goes. The default model's identity stays identity.
+    let bias = &scene.stereo.bias;
+    let (turn, old_about) = (bias.rotation, scene.pose.translation.vector);
+    let offset = bias.translation.vector - (old_about - turn * old_about);
+    let new_about = pose.translation.vector;
+    moved.stereo.bias.translation.vector = new_about - turn * new_about + offset;
     moved.pose = pose;
     moved.noise_seed = noise_seed;
     moved
@@ -85,5 +94,19 @@ mod tests {
         let b = seen_from(&scene, &near, 1);
         assert!(spread(&b) > spread(&a) * 1.2, "{} vs {}", spread(&b), spread(&a));
         assert!(renderer.render(&b, "b").is_some());
+    }
+
+    #[test]
+    fn a_realistic_stereo_bias_keeps_its_error_at_the_outlet_as_the_camera_moves() {
+        let camera = CameraModel::default_vga();
+        let scene = crate::sample_scene("rs_orange2x1", 2, 0, &camera).expect("scene");
+        let error_at_outlet = |s: &Scene| {
+            let outlet = nalgebra::Point3::from(s.pose.translation.vector);
+            (s.stereo.bias * outlet - outlet).norm()
+        };
+        let near = scene.pose.inverse() * nalgebra::Translation3::new(0.02, 0.0, 0.12);
+        let moved = seen_from(&scene, &near, 1);
+        assert!((error_at_outlet(&moved) - error_at_outlet(&scene)).abs() < 1e-9);
+        assert!(error_at_outlet(&scene) > 0.4e-3);
     }
 }

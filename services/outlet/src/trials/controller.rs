@@ -265,13 +265,14 @@ mod tests {
     use super::*;
     use outlet_protocol::OutletGeometry;
 
-    /// A 2x1 outlet `distance` ahead, head-on, its holes with `sigma` in-plane.
+    /// A 2x1 outlet `distance` ahead, head-on, its upper receptacle on the
+    /// camera's axis, its holes with `sigma` in-plane.
     fn seen(distance: f64, sigma: f64) -> Estimate {
         let holes = OutletGeometry::us_2x1()
             .holes
             .iter()
             .map(|h| SeenHole {
-                position_m: Vector3::new(h.position_mm[0] / 1e3, h.position_mm[1] / 1e3, distance),
+                position_m: Vector3::new(h.position_mm[0] / 1e3, (h.position_mm[1] + 19.05) / 1e3, distance),
                 in_plane_sigma_m: sigma,
             })
             .collect();
@@ -292,7 +293,7 @@ mod tests {
         let mut c = Controller::new();
         c.target = Some(0);
         let Action::Insert(m) = c.step(Some(&seen(d, 0.1e-3))) else { panic!("should insert") };
-        assert!((m.translation.vector - Vector3::new(0.0, -0.01905, STANDOFF_M)).norm() < 1e-9, "{m}");
+        assert!((m.translation.vector - Vector3::new(0.0, 0.0, STANDOFF_M)).norm() < 1e-9, "{m}");
         assert_eq!(c.step(Some(&seen(d, 0.4e-3))), Action::Hold);
     }
 

