@@ -46,9 +46,9 @@ pub struct DetectorParams {
     /// ([`VerifyParams::max_identity_contradiction`]).
     pub ground_decides: f64,
     /// When nothing is found in an image whose larger side is at least this
-    /// (pixels), look again at half the resolution: the descriptor and the hashing
-    /// know holes up to about 50 px of slot pitch, which an HD camera passes at
-    /// 25 cm (0 = never).
+    /// (pixels), look again at half the resolution, and so on down the pyramid:
+    /// the descriptor and the hashing know holes up to about 50 px of slot pitch,
+    /// which an HD camera passes at 25 cm and a VGA one at 13 cm (0 = never).
     pub pyramid_min_px: u32,
     /// A hole whose centre could not be fitted is taken from the homography of
     /// the fitted holes only when at least this many were fitted. Four fix a
@@ -78,7 +78,7 @@ impl Default for DetectorParams {
             second_look_margin: 0.25,
             ground_contrast: 0.05,
             ground_decides: 0.2,
-            pyramid_min_px: 1280,
+            pyramid_min_px: 640,
             min_fitted_for_prediction: 4,
             predicted_sigma_mm: 0.5,
         }
@@ -212,13 +212,14 @@ impl Detector {
         times.classify = ms_since(t);
 
         // What the image and the camera tell the hashing: the frame's size, and
-        // with a camera the scales an outlet 15-70 cm away can have (sqrt of the
-        // Jacobian's determinant; down to the most foreshortening hashing allows).
+        // with a camera the scales an outlet 8-70 cm away can have (sqrt of the
+        // Jacobian's determinant; down to the most foreshortening hashing allows):
+        // an arm's camera sees the outlet to the last centimetres (issue 21).
         let mut hash = self.params.hash.clone();
         hash.image_size = Some([grey.width() as f64, grey.height() as f64]);
         if let Some(c) = camera {
             let f = (c.fx * c.fy).sqrt();
-            hash.scale_range = Some([f / 700.0 * hash.min_axis_ratio.clamp(0.0, 1.0).sqrt(), f / 150.0]);
+            hash.scale_range = Some([f / 700.0 * hash.min_axis_ratio.clamp(0.0, 1.0).sqrt(), f / 80.0]);
         }
         let lens = Lens { camera };
         let (mut detection, mut rejected) = self.search(grey, &lens, &classified, &hash, &mut times);

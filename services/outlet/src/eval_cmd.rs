@@ -40,6 +40,11 @@ pub struct EvalArgs {
     /// `--count` frames per scenario, default 150).
     #[arg(long)]
     pub nees: bool,
+    /// Instead of Table I: approaches from 60 to 10 cm seen by a 640x480, a
+    /// 1280x960 and a 1920x1080 camera (`approach.md`, `approach.jsonl`,
+    /// `approach.png`; `--count` approaches per scenario, default 5).
+    #[arg(long)]
+    pub approach: bool,
     /// Plane mode: what the stereo plane cannot know, "FACE_MM,TILT_DEG,DISTANCE_MM"
     /// (as `outlet detect --model-error`); "0,0,0" for exact faces and an unbiased cloud.
     #[arg(long, default_value = "1.15,0.48,1.32", value_parser = outlet::ModelError::parse)]
@@ -114,6 +119,9 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
 pub fn eval(args: EvalArgs) -> Result<()> {
     if args.nees {
         return crate::nees::eval_nees(&args);
+    }
+    if args.approach {
+        return crate::approach_cmd::eval_approach(&args);
     }
     if !args.photos.is_empty() {
         return crate::photos_cmd::eval_photos(&crate::photos_cmd::PhotoEvalArgs {

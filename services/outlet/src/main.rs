@@ -1,5 +1,6 @@
 //! `outlet`: the command line of the outlet perception sidecar.
 
+mod approach_cmd;
 mod demo;
 mod detect_cmd;
 mod eval_cmd;

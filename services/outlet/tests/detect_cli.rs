@@ -279,3 +279,41 @@ fn a_batch_of_rendered_images_gives_exact_expected_counts() {
     }
     assert_eq!((correct, false_alarms), (16, 0), "correct detections and false alarms over 16 outlets, 8 negatives");
 }
+
+#[test]
+fn an_approach_keeps_the_outlet_found_to_12_cm_with_every_camera() {
+    // Issue 21: an arm's camera sees the holes grow to 60-140 px of slot pitch
+    // in the last centimetres; the pyramid must keep them found, never wrong.
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = outlet(&[
+        "eval",
+        "--approach",
+        "--scenario",
+        "orange2x1",
+        "--count",
+        "1",
+        "--threads",
+        "2",
+        "--out",
+        dir.path().to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(dir.path().join("approach.jsonl")).expect("approach.jsonl");
+    let views: Vec<Value> = text.lines().map(|l| serde_json::from_str(l).expect("json")).collect();
+    assert_eq!(views.len(), 27, "9 distances x 3 cameras");
+    for v in &views {
+        assert!(!(v["found"] == true && v["correct"] == false), "a wrong outlet: {v}");
+        let d = v["distance_m"].as_f64().expect("distance");
+        if (0.12..=0.30).contains(&d) {
+            assert_eq!(v["correct"], true, "not found: {v}");
+        }
+    }
+    let pitch = |camera: &str, d: f64| {
+        views
+            .iter()
+            .find(|v| v["camera"] == camera && (v["distance_m"].as_f64().unwrap_or(0.0) - d).abs() < 1e-9)
+            .and_then(|v| v["pitch_px"].as_f64())
+            .expect("view")
+    };
+    assert!(pitch("640x480", 0.12) > 55.0 && pitch("1920x1080", 0.12) > 120.0, "the holes did grow");
+}
