@@ -50,6 +50,12 @@ pub struct DetectorParams {
     /// the descriptor and the hashing know holes up to about 50 px of slot pitch,
     /// which an HD camera passes at 25 cm and a VGA one at 13 cm (0 = never).
     pub pyramid_min_px: u32,
+    /// In an image whose larger side is at least this (pixels), look at half
+    /// resolution first and at full resolution only when nothing is found there:
+    /// an HD frame's holes are large enough at half size from 10 to 60 cm, and
+    /// the half level costs a quarter (the outlet found is refined and verified
+    /// at full resolution all the same). 0 = never.
+    pub coarse_first_px: u32,
     /// A hole whose centre could not be fitted is taken from the homography of
     /// the fitted holes only when at least this many were fitted. Four fix a
     /// homography exactly and check nothing; the predicted hole's outline must
@@ -79,6 +85,7 @@ impl Default for DetectorParams {
             ground_contrast: 0.05,
             ground_decides: 0.2,
             pyramid_min_px: 640,
+            coarse_first_px: 1280,
             min_fitted_for_prediction: 4,
             predicted_sigma_mm: 0.5,
         }
@@ -191,6 +198,11 @@ impl Detector {
 
     pub fn detect_grey(&self, grey: &GrayImage, camera: Option<&CameraModel>) -> DetectReport {
         let mut times = StageTimes::default();
+        let largest = grey.width().max(grey.height());
+        let coarse_first = self.params.coarse_first_px > 0 && largest >= self.params.coarse_first_px;
+        if coarse_first && let Some((Ok(found), candidates)) = self.at_half_resolution(grey, camera, &mut times) {
+            return DetectReport { detection: Some(found), candidates, times, rejected: None };
+        }
         let t = Instant::now();
         let _span = tracing::debug_span!("detect", width = grey.width(), height = grey.height()).entered();
         let mut params = self.params.candidates.clone();
@@ -252,10 +264,12 @@ impl Detector {
                 rejected = why.or(rejected);
             }
         }
+        // (Coarse first: the levels below were looked at already.)
         if detection.is_none()
+            && !coarse_first
             && self.params.pyramid_min_px > 0
-            && grey.width().max(grey.height()) >= self.params.pyramid_min_px
-            && let Some(half) = self.at_half_resolution(grey, camera, &mut times)
+            && largest >= self.params.pyramid_min_px
+            && let Some((half, _)) = self.at_half_resolution(grey, camera, &mut times)
         {
             match half {
                 Ok(found) => detection = Some(found),
@@ -276,7 +290,7 @@ impl Detector {
         grey: &GrayImage,
         camera: Option<&CameraModel>,
         times: &mut StageTimes,
-    ) -> Option<Result<Detection, Option<String>>> {
+    ) -> Option<(Result<Detection, Option<String>>, Vec<(Candidate, Class)>)> {
         let half = half_resolution(grey)?;
         let half_camera = match camera {
             Some(c) => Some(half_camera(c, half.width(), half.height())?),
@@ -284,7 +298,17 @@ impl Detector {
         };
         let report = self.detect_grey(&half, half_camera.as_ref());
         *times += report.times;
-        Some(match report.detection {
+        // The level's candidates in this image's pixels.
+        let candidates = report
+            .candidates
+            .iter()
+            .map(|(c, class)| {
+                let centre = Point2::new(2.0 * c.centre.x + 0.5, 2.0 * c.centre.y + 0.5);
+                let size = [c.size[0].saturating_mul(2), c.size[1].saturating_mul(2)];
+                (Candidate { centre, size, area: c.area.saturating_mul(4), ..*c }, *class)
+            })
+            .collect();
+        let outcome = match report.detection {
             // OpenCV pixel centres: full = 2 half + 0.5, in the image as captured
             // and in undistorted pixels alike (the camera is scaled the same way).
             Some(mut d) => {
@@ -312,7 +336,8 @@ impl Detector {
                 }
             }
             None => Err(report.rejected),
-        })
+        };
+        Some((outcome, candidates))
     }
 
     /// Hashing over the hole-classed candidates, then refinement and
