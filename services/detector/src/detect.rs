@@ -159,6 +159,10 @@ pub struct DetectReport {
     pub rejected: Option<String>,
 }
 
+/// What a pyramid level says: its outlet (in the full image's pixels), or why
+/// not (the reason a found outlet was refused, if any).
+type LevelOutcome = Result<Detection, Option<String>>;
+
 /// A template ready to detect with.
 #[derive(Debug, Clone)]
 pub struct Detector {
@@ -290,7 +294,7 @@ impl Detector {
         grey: &GrayImage,
         camera: Option<&CameraModel>,
         times: &mut StageTimes,
-    ) -> Option<(Result<Detection, Option<String>>, Vec<(Candidate, Class)>)> {
+    ) -> Option<(LevelOutcome, Vec<(Candidate, Class)>)> {
         let half = half_resolution(grey)?;
         let half_camera = match camera {
             Some(c) => Some(half_camera(c, half.width(), half.height())?),
