@@ -166,7 +166,9 @@ fn view(
     let report = detector.detect(&frame.frame.image, Some(camera));
     let ms = t.elapsed().as_secs_f64() * 1e3;
     let pitch_px = slot_pitch_px(&truth.holes);
-    let off_axis_deg = (pose.rotation * Vector3::z()).dot(&-Vector3::z()).clamp(-1.0, 1.0).acos().to_degrees();
+    // The angle between the face normal (the outlet frame's z axis, either sign) and the line to the camera.
+    let to_camera = pose.translation.vector / distance;
+    let off_axis_deg = to_camera.z.abs().min(1.0).acos().to_degrees();
     let in_image =
         |p: &[f64; 2]| p[0] >= 0.0 && p[1] >= 0.0 && p[0] < camera.width as f64 && p[1] < camera.height as f64;
     if !truth.holes.iter().all(|h| in_image(&h.pixel)) {
