@@ -28,6 +28,10 @@ const MAX_CREEP_M: f64 = 0.06;
 const PATIENCE: u32 = 2;
 const SLOW_FRACTION: f64 = 0.3;
 
+/// A pose whose own 3-sigma in-plane error is this many times a hole's
+/// tolerance is not acted on (seen: wrong poses with 3-sigma of 15-50 mm).
+const TOO_UNCERTAIN: f64 = 4.0;
+
 /// The arm's repeatability, one sigma per axis: a translation is off by this
 /// fraction of its length plus a floor, a turn by a fraction of its angle plus
 /// a floor. A controller knows this from the arm's data sheet.
@@ -132,10 +136,20 @@ impl Controller {
             self.misses += 1;
             return self.without_pose();
         };
-        self.misses = 0;
         let receptacles = est.holes.len() / 3;
-        let target = *self.target.get_or_insert_with(|| nearest_to_axis(est));
-        let target = target.min(receptacles - 1);
+        let target = self.target.unwrap_or_else(|| nearest_to_axis(est)).min(receptacles - 1);
+        let pose_ratio = TOLERANCES_MM
+            .iter()
+            .enumerate()
+            .map(|(k, t)| 3e3 * est.holes[3 * target + k].in_plane_sigma_m / t)
+            .fold(0.0, f64::max);
+        if pose_ratio > TOO_UNCERTAIN {
+            // A pose this unsure is no guide for the arm: as good as none.
+            self.misses += 1;
+            return self.without_pose();
+        }
+        self.misses = 0;
+        self.target = Some(target);
         let standoff = goal(est, target, STANDOFF_M);
         self.goal = Some(self.belief * standoff);
         let (moved_m, turned) = size(&standoff);
@@ -295,6 +309,16 @@ mod tests {
         let Action::Insert(m) = c.step(Some(&seen(d, 0.1e-3))) else { panic!("should insert") };
         assert!((m.translation.vector - Vector3::new(0.0, 0.0, STANDOFF_M)).norm() < 1e-9, "{m}");
         assert_eq!(c.step(Some(&seen(d, 0.4e-3))), Action::Hold);
+    }
+
+    #[test]
+    fn a_pose_unsure_by_centimetres_is_not_followed() {
+        let mut c = Controller::new();
+        assert_eq!(c.step(Some(&seen(0.4, 5e-3))), Action::Hold);
+        assert_eq!(c.step(Some(&seen(0.4, 5e-3))), Action::Move(Isometry3::translation(0.0, 0.0, CREEP_M)));
+        assert!(!c.found());
+        assert!(matches!(c.step(Some(&seen(0.4, 0.2e-3))), Action::Move(_)));
+        assert_eq!(c.target, Some(0));
     }
 
     #[test]

@@ -49,6 +49,10 @@ pub struct TrialsArgs {
     /// Write the success-rate plot (PNG) here.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Write every frame (PNG) and its truth (JSON) here, to look at a trial
+    /// repeated alone with `--first`.
+    #[arg(long)]
+    pub save_frames: Option<PathBuf>,
     /// Where the services' logs go (default: a folder in the temp dir).
     #[arg(long)]
     pub logs: Option<PathBuf>,
@@ -73,6 +77,9 @@ pub fn trials(args: TrialsArgs) -> Result<()> {
     let camera = CameraModel::default_vga();
     let renderer = ApproachRenderer::new(&camera);
     let run = format!("trials-{}", std::process::id());
+    if let Some(dir) = &args.save_frames {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
     let logs = args.logs.clone().unwrap_or_else(|| std::env::temp_dir().join(&run));
     std::fs::create_dir_all(&logs).with_context(|| format!("creating {}", logs.display()))?;
     eprintln!(
@@ -101,7 +108,14 @@ pub fn trials(args: TrialsArgs) -> Result<()> {
             pipelines.insert(template.clone(), p);
         }
         let Some(pipeline) = pipelines.get_mut(&template) else { bail!("no pipeline for {template}") };
-        let record = run_trial(index, args.seed, &setup, pipeline, &renderer, &camera, args.max_frames)?;
+        let trial = Trial {
+            index,
+            seed: args.seed,
+            setup: &setup,
+            max_frames: args.max_frames,
+            save: args.save_frames.as_deref(),
+        };
+        let record = run_trial(&trial, pipeline, &renderer, &camera)?;
         if args.json {
             let mut out = stdout.lock();
             writeln!(out, "{}", serde_json::to_string(&record)?)?;
@@ -118,16 +132,23 @@ pub fn trials(args: TrialsArgs) -> Result<()> {
     Ok(())
 }
 
-/// One approach: frames until the controller pushes or the budget runs out.
-fn run_trial(
+/// What one approach is given.
+struct Trial<'a> {
     index: u64,
     seed: u64,
-    setup: &park::Setup,
+    setup: &'a park::Setup,
+    max_frames: u32,
+    save: Option<&'a std::path::Path>,
+}
+
+/// One approach: frames until the controller pushes or the budget runs out.
+fn run_trial(
+    trial: &Trial,
     pipeline: &mut Pipeline,
     renderer: &ApproachRenderer,
     camera: &CameraModel,
-    max_frames: u32,
 ) -> Result<TrialRecord> {
+    let Trial { index, seed, setup, max_frames, save } = *trial;
     let started = Instant::now();
     let mut arm = SimRng::new(outlet_sim::scenario::image_seed(seed, "trials-arm", index));
     let mut controller = Controller::new();
@@ -140,12 +161,21 @@ fn run_trial(
         let scene = seen_from(&setup.scene, &tool, noise_seed);
         let rendered = renderer.render(&scene, "trial").context("the renderer's camera")?;
         record.render_ms += t.elapsed().as_secs_f64() * 1e3;
+        if let Some(dir) = save {
+            let stem = dir.join(format!("trial{index:05}_frame{frame:02}"));
+            rendered.frame.image.save(stem.with_extension("png"))?;
+            std::fs::write(stem.with_extension("json"), serde_json::to_string(&rendered.truth)?)?;
+        }
         let result = pipeline.process(camera, rendered.frame.image.as_raw(), &rendered.cloud)?;
         record.frames += 1;
         record.count_status(result.status);
         record.detect_ms += result.detect_ms.unwrap_or(0.0);
         if let Some(s) = result.sidecar_ms {
             record.pose_ms += (s - result.detect_ms.unwrap_or(0.0)).max(0.0);
+        }
+        if let Some(poses) = &result.poses {
+            let truth: Vec<Option<[f64; 3]>> = rendered.truth.holes.iter().map(|h| h.position_m).collect();
+            record.check_pose(poses, &truth);
         }
         let estimate = result.poses.as_ref().and_then(Estimate::of);
         let action = controller.step(estimate.as_ref());

@@ -41,6 +41,10 @@ pub struct TrialRecord {
     pub render_ms: f64,
     pub detect_ms: f64,
     pub pose_ms: f64,
+    /// Results with a pose whose worst hole is more than 3 mm from the truth
+    /// (false poses), and the worst hole error of any result with a pose (mm).
+    pub false_poses: u32,
+    pub worst_pose_error_mm: Option<f64>,
     /// The receptacle aimed at (template order).
     pub target: Option<usize>,
     /// Where the plug met the face (or would have).
@@ -75,6 +79,8 @@ impl TrialRecord {
             render_ms: 0.0,
             detect_ms: 0.0,
             pose_ms: 0.0,
+            false_poses: 0,
+            worst_pose_error_mm: None,
             target: None,
             landing: None,
             predicted_over_tolerance: None,
@@ -83,6 +89,28 @@ impl TrialRecord {
 
     pub fn count_status(&mut self, status: &'static str) {
         *self.statuses.entry(status).or_default() += 1;
+    }
+
+    /// Holds a result with a pose against the frame's true holes (camera frame).
+    pub fn check_pose(&mut self, poses: &outlet_client::HolePoses, truth: &[Option<[f64; 3]>]) {
+        if !poses.is_usable() {
+            return;
+        }
+        let worst = if poses.holes.len() == truth.len() {
+            poses
+                .holes
+                .iter()
+                .zip(truth)
+                .map(|(h, t)| match t {
+                    Some(t) => (0..3).map(|i| (h.position_m[i] - t[i]).powi(2)).sum::<f64>().sqrt() * 1e3,
+                    None => f64::INFINITY,
+                })
+                .fold(0.0, f64::max)
+        } else {
+            f64::INFINITY // a pose where the scene has no such outlet
+        };
+        self.false_poses += (worst > 3.0) as u32;
+        self.worst_pose_error_mm = Some(self.worst_pose_error_mm.map_or(worst, |w| w.max(worst)));
     }
 
     pub fn finish(
@@ -186,7 +214,10 @@ pub fn summary(records: &[TrialRecord], wall_s: f64) -> String {
             *statuses.entry(k).or_default() += v;
         }
     }
-    let _ = writeln!(s, "Frames by the sidecar's answer: {statuses:?}\n");
+    let _ = writeln!(s, "Frames by the sidecar's answer: {statuses:?}");
+    let false_poses: u32 = records.iter().map(|r| r.false_poses).sum();
+    let trials_with = records.iter().filter(|r| r.false_poses > 0).count();
+    let _ = writeln!(s, "False poses (a hole > 3 mm from the truth): {false_poses} in {trials_with} trials\n");
     for (title, key) in breakdowns() {
         let mut groups: BTreeMap<String, Vec<&TrialRecord>> = BTreeMap::new();
         for r in records {
@@ -253,6 +284,10 @@ pub fn plot(records: &[TrialRecord]) -> RgbImage {
                     img.put_pixel(x, y, Rgb([60, 110, 200]));
                 }
             }
+            // The rate in figures: bars near 100% look alike.
+            let figure = format!("{:.1}%", 100.0 * rate);
+            let text_y = (bar_top + 4).min(y0 + plot_h - 10);
+            crate::font::draw_text(&mut img, &figure, bx + 5, text_y, 1, Rgb([255, 255, 255]));
             let short: String = label.chars().take((bw / 6).max(3) as usize).collect();
             crate::font::draw_text(&mut img, &short, bx + 3, y0 + plot_h + 8, 1, Rgb([0, 0, 0]));
             crate::font::draw_text(&mut img, &format!("n={n}"), bx + 3, y0 + plot_h + 20, 1, Rgb([100, 100, 100]));
