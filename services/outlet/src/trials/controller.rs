@@ -29,7 +29,8 @@ const PATIENCE: u32 = 2;
 const SLOW_FRACTION: f64 = 0.3;
 
 /// A pose whose own 3-sigma in-plane error is this many times a hole's
-/// tolerance is not acted on (seen: wrong poses with 3-sigma of 15-50 mm).
+/// tolerance is followed slowly (seen: wrong poses with 3-sigma of 15-50 mm;
+/// holding on them instead lost 2x1 outlets seen from 55 cm, 35 degrees).
 const TOO_UNCERTAIN: f64 = 4.0;
 
 /// The arm's repeatability, one sigma per axis: a translation is off by this
@@ -143,11 +144,6 @@ impl Controller {
             .enumerate()
             .map(|(k, t)| 3e3 * est.holes[3 * target + k].in_plane_sigma_m / t)
             .fold(0.0, f64::max);
-        if pose_ratio > TOO_UNCERTAIN {
-            // A pose this unsure is no guide for the arm: as good as none.
-            self.misses += 1;
-            return self.without_pose();
-        }
         self.misses = 0;
         self.target = Some(target);
         let standoff = goal(est, target, STANDOFF_M);
@@ -174,7 +170,10 @@ impl Controller {
             // Too uncertain: look again from here.
             return Action::Hold;
         }
-        self.command(limit(&standoff, 1.0))
+        // A pose unsure by centimetres may be a wrong one: only a little way
+        // towards it, to look again from nearer.
+        let fraction = if pose_ratio > TOO_UNCERTAIN { SLOW_FRACTION } else { 1.0 };
+        self.command(limit(&standoff, fraction))
     }
 
     fn without_pose(&mut self) -> Action {
@@ -312,12 +311,11 @@ mod tests {
     }
 
     #[test]
-    fn a_pose_unsure_by_centimetres_is_not_followed() {
+    fn a_pose_unsure_by_centimetres_is_followed_slowly() {
         let mut c = Controller::new();
-        assert_eq!(c.step(Some(&seen(0.4, 5e-3))), Action::Hold);
-        assert_eq!(c.step(Some(&seen(0.4, 5e-3))), Action::Move(Isometry3::translation(0.0, 0.0, CREEP_M)));
-        assert!(!c.found());
-        assert!(matches!(c.step(Some(&seen(0.4, 0.2e-3))), Action::Move(_)));
+        let Action::Move(m) = c.step(Some(&seen(0.4, 5e-3))) else { panic!("should move") };
+        let full = 0.4 - TIP_AHEAD_M - STANDOFF_M;
+        assert!((size(&m).0 - SLOW_FRACTION * full).abs() < 1e-9, "{m}");
         assert_eq!(c.target, Some(0));
     }
 

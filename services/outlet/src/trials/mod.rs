@@ -108,6 +108,11 @@ pub fn trials(args: TrialsArgs) -> Result<()> {
             pipelines.insert(template.clone(), p);
         }
         let Some(pipeline) = pipelines.get_mut(&template) else { bail!("no pipeline for {template}") };
+        if pipeline.interrupted() {
+            // Stop the services cleanly and report what was run.
+            eprintln!("outlet trials: interrupted after {} trials", records.len());
+            break;
+        }
         let trial = Trial {
             index,
             seed: args.seed,

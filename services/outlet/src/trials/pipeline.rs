@@ -51,7 +51,7 @@ pub struct Pipeline {
     client: Client,
     next_id: u64,
     // Declared last: the ports above drop before their node.
-    _node: Node<ipc::Service>,
+    node: Node<ipc::Service>,
 }
 
 impl Pipeline {
@@ -94,7 +94,7 @@ impl Pipeline {
             detections,
             client,
             next_id: 0,
-            _node: node,
+            node,
         };
         let services: [&[&str]; 3] =
             [&["normal"], &["pose", "--template", template], &["detector", "--template", template]];
@@ -211,6 +211,11 @@ impl Pipeline {
                 Err(e) => tracing::warn!("client: {e}"),
             }
         }
+    }
+
+    /// Ctrl-C or SIGTERM arrived (iceoryx2's handler records it).
+    pub fn interrupted(&self) -> bool {
+        self.node.wait(Duration::ZERO).is_err()
     }
 
     fn detect_ms_of(&mut self, id: u64) -> Option<f64> {
