@@ -57,11 +57,11 @@ pub struct DetectorParams {
     /// at full resolution all the same). 0 = never.
     pub coarse_first_px: u32,
     /// A hole whose centre could not be fitted is taken from the homography of
-    /// the fitted holes only when at least this many were fitted. Four fix a
-    /// homography exactly and check nothing; the predicted hole's outline must
-    /// still show at the predicted place. Requiring five changed nothing on the
-    /// Willow views (0 and 1 wrong either way, 2 of 279 fewer found) and lost the
-    /// demo's frame 185, so four.
+    /// the fitted holes only when at least this many were fitted: four fix a
+    /// homography exactly and check nothing. The predicted hole's outline must
+    /// also show at the predicted place, but a large hole's outline shows even
+    /// 1.7 mm off: with four, a 2x1 at 10 cm came out with two holes 18 px
+    /// (135 px slot pitch) from the real ones (`outlet eval --approach`).
     pub min_fitted_for_prediction: usize,
     /// A hole taken from the homography is off by the real outlet's departure
     /// from the nominal geometry (mm, per axis): on the Willow photographs the
@@ -86,7 +86,7 @@ impl Default for DetectorParams {
             ground_decides: 0.2,
             pyramid_min_px: 640,
             coarse_first_px: 1280,
-            min_fitted_for_prediction: 4,
+            min_fitted_for_prediction: 5,
             predicted_sigma_mm: 0.5,
         }
     }

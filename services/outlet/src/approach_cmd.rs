@@ -41,6 +41,8 @@ struct ApproachOutcome {
     /// Plane-mode hole position errors (mm), for correct detections.
     plane_mm: Vec<f64>,
     ms: f64,
+    /// Candidates, classification, hashing, refinement (ms, all levels).
+    stages_ms: [f64; 4],
 }
 
 fn camera_model(width: u32, height: u32, f: f64, distortion: [f64; 5]) -> Result<CameraModel> {
@@ -204,6 +206,17 @@ fn view(
             }
         }
     }
+    // Wrong outlets are kept to look at (`outlet detect --camera` reruns them).
+    if found && !correct {
+        let dir = args.out.join("wrong");
+        let stem = format!("{name}_{}_{approach}_{:.0}cm", scene.scenario, distance * 100.0);
+        std::fs::create_dir_all(&dir)?;
+        frame.frame.image.save_with_format(dir.join(format!("{stem}.png")), image::ImageFormat::Png)?;
+        std::fs::write(
+            dir.join(format!("{stem}.yaml")),
+            outlet_protocol::camera_info::write_camera_info(camera, &stem),
+        )?;
+    }
     Ok(Some(ApproachOutcome {
         scenario: scene.scenario.clone(),
         approach,
@@ -216,6 +229,7 @@ fn view(
         errors_px,
         plane_mm,
         ms,
+        stages_ms: [report.times.candidates, report.times.classify, report.times.hash, report.times.refine],
     }))
 }
 

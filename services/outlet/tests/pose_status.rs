@@ -14,8 +14,8 @@ fn a_plane_that_cannot_explain_the_holes_gives_plane_mismatch_and_no_pose() -> R
     let mut services = common::Services::start_2x1_pipeline(&domain)?;
     // The sim camera's 640x480 camera is the default VGA one.
     let camera = outlet_protocol::CameraModel::default_vga();
-    let scene = outlet_sim::sample_scene("fw_2x1white", 1, 184, &camera)?;
-    let frame = outlet_sim::render_frame(&scene, "sim-184");
+    let scene = common::frontal_scene("fw_2x1white", &camera, 20.0)?;
+    let frame = outlet_sim::render_frame(&scene, "frontal");
     let pixels = frame.frame.image.as_raw();
     // Every point 5 cm further along its ray: a wall behind the outlet's.
     let cloud: Vec<f32> = frame.cloud.iter().flat_map(|p| p.map(|v| v * (1.0 + 0.05 / p[2].max(0.05)))).collect();
