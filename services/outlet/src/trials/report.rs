@@ -44,6 +44,9 @@ pub struct TrialRecord {
     /// Results with a pose whose worst hole is more than 3 mm from the truth
     /// (false poses), and the worst hole error of any result with a pose (mm).
     pub false_poses: u32,
+    /// False poses whose error bars do not cover them: a hole more than 3 mm
+    /// off and more than 5 sigma (`sqrt(e^T C^-1 e)`) from the truth.
+    pub lying_poses: u32,
     pub worst_pose_error_mm: Option<f64>,
     /// The receptacle aimed at (template order).
     pub target: Option<usize>,
@@ -80,6 +83,7 @@ impl TrialRecord {
             detect_ms: 0.0,
             pose_ms: 0.0,
             false_poses: 0,
+            lying_poses: 0,
             worst_pose_error_mm: None,
             target: None,
             landing: None,
@@ -110,6 +114,20 @@ impl TrialRecord {
             f64::INFINITY // a pose where the scene has no such outlet
         };
         self.false_poses += (worst > 3.0) as u32;
+        let sigmas = |h: &outlet_client::Hole, t: &[f64; 3]| {
+            let e = nalgebra::Vector3::from_fn(|i, _| h.position_m[i] - t[i]);
+            let c = nalgebra::Matrix3::from_fn(|i, j| h.covariance_m2[i][j]);
+            c.cholesky().map_or(f64::INFINITY, |l| e.dot(&l.solve(&e)).sqrt())
+        };
+        let lying = poses.holes.len() != truth.len()
+            || poses.holes.iter().zip(truth).any(|(h, t)| match t {
+                Some(t) => {
+                    let mm = (0..3).map(|i| (h.position_m[i] - t[i]).powi(2)).sum::<f64>().sqrt() * 1e3;
+                    mm > 3.0 && sigmas(h, t) > 5.0
+                }
+                None => true,
+            });
+        self.lying_poses += lying as u32;
         self.worst_pose_error_mm = Some(self.worst_pose_error_mm.map_or(worst, |w| w.max(worst)));
     }
 
@@ -217,7 +235,11 @@ pub fn summary(records: &[TrialRecord], wall_s: f64) -> String {
     let _ = writeln!(s, "Frames by the sidecar's answer: {statuses:?}");
     let false_poses: u32 = records.iter().map(|r| r.false_poses).sum();
     let trials_with = records.iter().filter(|r| r.false_poses > 0).count();
-    let _ = writeln!(s, "False poses (a hole > 3 mm from the truth): {false_poses} in {trials_with} trials\n");
+    let lying: u32 = records.iter().map(|r| r.lying_poses).sum();
+    let _ = writeln!(
+        s,
+        "False poses (a hole > 3 mm from the truth): {false_poses} in {trials_with} trials; of them beyond 5 sigma of their own covariance: {lying}\n"
+    );
     for (title, key) in breakdowns() {
         let mut groups: BTreeMap<String, Vec<&TrialRecord>> = BTreeMap::new();
         for r in records {
