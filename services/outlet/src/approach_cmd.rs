@@ -9,9 +9,9 @@
 use crate::eval_cmd::EvalArgs;
 use anyhow::{Context, Result};
 use image::{Rgb, RgbImage};
-use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use outlet_detector::detect::{Detector, DetectorParams};
-use outlet_pose::{Observations, solve_plane};
+use outlet_pose::solve_plane;
 use outlet_protocol::CameraModel;
 use outlet_sim::approach::{ApproachRenderer, seen_from};
 use std::collections::HashMap;
@@ -189,11 +189,8 @@ fn view(
     let mut plane_mm = Vec::new();
     if let (true, Some(d)) = (correct, &report.detection) {
         let geometry = &detector.template().geometry;
-        let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
-        let pixels: Vec<Point2<f64>> = d.holes.iter().map(|h| h.pixel).collect();
-        let sigmas: Vec<f64> = d.holes.iter().map(|h| h.sigma_px).collect();
-        let obs =
-            Observations { model_mm: &model, pixels: &pixels, camera, pixel_sigma: 0.25, pixel_sigmas: Some(&sigmas) };
+        let holes = outlet::DetectedHoles::new(d, geometry);
+        let obs = holes.observations(camera, 0.25);
         if let Ok(plane) = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default()) {
             let measurement = outlet::plane_measurement(&plane, geometry, &args.model_error);
             if let Ok(p) = solve_plane(&obs, &measurement) {
@@ -300,20 +297,7 @@ fn plot(outcomes: &[ApproachOutcome]) -> RgbImage {
     let (x0, y0, pw, ph) = (60u32, 50u32, 540u32, 250u32);
     let mut img = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
     crate::font::draw_text(&mut img, "found vs distance (cm), 10..60", x0, 16, 2, Rgb([0, 0, 0]));
-    for k in 0..=4 {
-        let y = y0 + ph - ph * k / 4;
-        for x in x0..x0 + pw {
-            img.put_pixel(x, y, Rgb([210, 210, 210]));
-        }
-        crate::font::draw_text(
-            &mut img,
-            &format!("{}%", k * 25),
-            x0.saturating_sub(40),
-            y.saturating_sub(3),
-            1,
-            Rgb([80; 3]),
-        );
-    }
+    crate::font::draw_percent_grid(&mut img, x0, y0, pw, ph);
     let colours = [Rgb([60, 110, 200]), Rgb([220, 120, 30]), Rgb([40, 160, 60])];
     let x_of = |d: f64| x0 + ((d - 0.10) / 0.50 * pw as f64).clamp(0.0, pw as f64) as u32;
     for ((name, ..), colour) in CAMERAS.iter().zip(colours) {

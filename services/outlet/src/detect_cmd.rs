@@ -12,7 +12,7 @@ use outlet_detector::detect::{DetectReport, Detection, Detector, DetectorParams}
 use outlet_detector::template::{TrainingImage, train_template};
 use outlet_detector::{Class, grey_of};
 use outlet_normal::{PlaneParams, fit_wall_plane};
-use outlet_pose::{Observations, OutletPose, PoseError, solve_mono, solve_normal, solve_plane};
+use outlet_pose::{OutletPose, PoseError, solve_mono, solve_normal, solve_plane};
 use outlet_protocol::camera_info::read_camera_info;
 use outlet_protocol::ply::read_ply;
 use outlet_protocol::truth::PoseJson;
@@ -306,17 +306,9 @@ fn solve_pose(
     model_error: &outlet::ModelError,
 ) -> Result<OutletPose> {
     let geometry = &detector.template().geometry;
-    let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
-    let pixels: Vec<Point2<f64>> = detection.holes.iter().map(|h| h.pixel).collect();
     // Each hole's own sigma from the detector's fit (HOLE_PIXEL_SIGMA where it has none).
-    let sigmas: Vec<f64> = detection.holes.iter().map(|h| h.sigma_px).collect();
-    let obs = Observations {
-        model_mm: &model,
-        pixels: &pixels,
-        camera,
-        pixel_sigma: HOLE_PIXEL_SIGMA,
-        pixel_sigmas: Some(&sigmas),
-    };
+    let holes = outlet::DetectedHoles::new(detection, geometry);
+    let obs = holes.observations(camera, HOLE_PIXEL_SIGMA);
     let pose = match wall {
         Wall::Normal(n) => solve_normal(&obs, n, GIVEN_NORMAL_SIGMA_RAD)?,
         Wall::Points(path) => {

@@ -488,20 +488,7 @@ fn plot(outcomes: &[Outcome]) -> RgbImage {
         let x0 = 40 + p as u32 * 440;
         let (plot_w, plot_h, y0) = (400u32, 240u32, 60u32);
         crate::font::draw_text(&mut img, title, x0, 16, 2, Rgb([0, 0, 0]));
-        for k in 0..=4 {
-            let y = y0 + plot_h - plot_h * k / 4;
-            for x in x0..x0 + plot_w {
-                img.put_pixel(x, y, Rgb([210, 210, 210]));
-            }
-            crate::font::draw_text(
-                &mut img,
-                &format!("{}%", k * 25),
-                x0.saturating_sub(34),
-                y.saturating_sub(3),
-                1,
-                Rgb([80, 80, 80]),
-            );
-        }
+        crate::font::draw_percent_grid(&mut img, x0, y0, plot_w, plot_h);
         let bw = plot_w / bars.len().max(1) as u32;
         for (i, (label, rate, n)) in bars.iter().enumerate() {
             let bx = x0 + i as u32 * bw;

@@ -74,6 +74,40 @@ pub fn plane_measurement(
     )
 }
 
+/// A detection's holes as the pose solvers take them: the template's hole
+/// positions (mm), the detected pixels and each hole's own sigma from the
+/// detector's fit.
+pub struct DetectedHoles {
+    pub model_mm: Vec<nalgebra::Point2<f64>>,
+    pub pixels: Vec<nalgebra::Point2<f64>>,
+    pub sigmas_px: Vec<f64>,
+}
+
+impl DetectedHoles {
+    pub fn new(detection: &outlet_detector::detect::Detection, geometry: &outlet_protocol::OutletGeometry) -> Self {
+        Self {
+            model_mm: geometry.holes.iter().map(|h| h.position()).collect(),
+            pixels: detection.holes.iter().map(|h| h.pixel).collect(),
+            sigmas_px: detection.holes.iter().map(|h| h.sigma_px).collect(),
+        }
+    }
+
+    /// The observations, `pixel_sigma` standing for a hole without a sigma of its own.
+    pub fn observations<'a>(
+        &'a self,
+        camera: &'a outlet_protocol::CameraModel,
+        pixel_sigma: f64,
+    ) -> outlet_pose::Observations<'a> {
+        outlet_pose::Observations {
+            model_mm: &self.model_mm,
+            pixels: &self.pixels,
+            camera,
+            pixel_sigma,
+            pixel_sigmas: Some(&self.sigmas_px),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

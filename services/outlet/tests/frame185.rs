@@ -10,9 +10,9 @@
 //! predict from four, the outlet is found, and its plane pose is within a
 //! millimetre and 5 sigma of the truth on every hole.
 
-use nalgebra::{Matrix3, Point2};
+use nalgebra::Matrix3;
 use outlet_detector::detect::{Detector, DetectorParams};
-use outlet_pose::{Observations, solve_plane};
+use outlet_pose::solve_plane;
 
 #[test]
 fn the_demos_frame_185_is_refused_or_else_a_plane_pose_within_a_millimetre() -> Result<(), Box<dyn std::error::Error>> {
@@ -31,16 +31,8 @@ fn the_demos_frame_185_is_refused_or_else_a_plane_pose_within_a_millimetre() -> 
     let permissive = Detector::new(template, DetectorParams { min_fitted_for_prediction: 4, ..Default::default() });
     let detection = permissive.detect(&frame.frame.image, Some(&camera)).detection.ok_or("found from 4 holes")?;
     let geometry = &permissive.template().geometry;
-    let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
-    let pixels: Vec<Point2<f64>> = detection.holes.iter().map(|h| h.pixel).collect();
-    let sigmas: Vec<f64> = detection.holes.iter().map(|h| h.sigma_px).collect();
-    let obs = Observations {
-        model_mm: &model,
-        pixels: &pixels,
-        camera: &camera,
-        pixel_sigma: 0.25,
-        pixel_sigmas: Some(&sigmas),
-    };
+    let holes = outlet::DetectedHoles::new(&detection, geometry);
+    let obs = holes.observations(&camera, 0.25);
     let plane = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default())?;
     let pose = solve_plane(&obs, &outlet::plane_measurement(&plane, geometry, &outlet::ModelError::default()))?;
     for (k, truth) in frame.truth.holes.iter().enumerate() {

@@ -288,14 +288,7 @@ pub fn plot(records: &[TrialRecord]) -> RgbImage {
         let top = 20 + (p as u32 / 2) * 370;
         let (plot_w, plot_h, y0) = (400u32, 240u32, top + 40);
         crate::font::draw_text(&mut img, &format!("success vs {title}"), x0, top, 2, Rgb([0, 0, 0]));
-        for k in 0..=4 {
-            let y = y0 + plot_h - plot_h * k / 4;
-            for x in x0..x0 + plot_w {
-                img.put_pixel(x, y, Rgb([210, 210, 210]));
-            }
-            let label = format!("{}%", k * 25);
-            crate::font::draw_text(&mut img, &label, x0.saturating_sub(34), y.saturating_sub(3), 1, Rgb([80, 80, 80]));
-        }
+        crate::font::draw_percent_grid(&mut img, x0, y0, plot_w, plot_h);
         let bw = plot_w / groups.len().max(1) as u32;
         for (i, (label, (ok, n))) in groups.iter().enumerate() {
             let bx = x0 + i as u32 * bw;
