@@ -455,6 +455,15 @@ impl Detector {
         // The faint holes join the fit and are checked by it (a faint fit off the
         // plane is dropped); any centre predicted below comes from this fit.
         let h = if faint_found { plane_fit(&model, &mut refined, lens, tolerance, min_holes)? } else { h };
+        // A fitted hole's sigma is at least what the other holes say of it: its
+        // outline fit measures the image noise, not the fit's bias (a T-slot's
+        // branch, a blurred edge, a worn opening), which shows as the hole's
+        // distance from where the rest of the outlet puts it.
+        for (i, spread) in agreement_sigmas(&model, &refined, lens).into_iter().enumerate() {
+            if let (Some(spread), Some(fit)) = (spread, fits[i].as_mut()) {
+                fit.sigma_px = fit.sigma_px.max(spread);
+            }
+        }
         // A centre taken from the homography is only as good as the fit it comes
         // from: it takes at least `min_fitted_for_prediction` fitted holes. Its outline
         // must show right there (`refined` false); its sigma carries the fitted
@@ -633,6 +642,39 @@ fn plane_fit(
     }
 }
 
+/// Per fitted hole, the standard deviation per axis (pixels) its disagreement
+/// with the other holes implies: with e its residual from the homography
+/// through all of them and r from the homography through the others
+/// (leave-one-out), e r / 2 estimates its variance per axis (the studentised
+/// residual of least squares: e shrinks by the hole's leverage and r grows by
+/// it, their product does neither). `None` for a hole not fitted, or where
+/// fewer than five others are.
+fn agreement_sigmas(model: &[Point2<f64>], refined: &[Option<Point2<f64>>], lens: &Lens) -> Vec<Option<f64>> {
+    let pairs: Vec<(usize, Point2<f64>, Point2<f64>)> =
+        model.iter().zip(refined).enumerate().filter_map(|(i, (t, r))| Some((i, *t, lens.undistort((*r)?)))).collect();
+    let mut out = vec![None; model.len()];
+    if pairs.len() < 6 {
+        return out;
+    }
+    let all: Vec<(Point2<f64>, Point2<f64>)> = pairs.iter().map(|(_, t, p)| (*t, *p)).collect();
+    let Some(full) = fit_homography(&all) else { return out };
+    for (k, (i, t, p)) in pairs.iter().enumerate() {
+        let others: Vec<(Point2<f64>, Point2<f64>)> =
+            all.iter().enumerate().filter(|(j, _)| *j != k).map(|(_, pair)| *pair).collect();
+        let (Some(e), Some(r)) = (
+            apply(&full, t).map(|q| (q - p).norm()),
+            fit_homography(&others).and_then(|h| apply(&h, t)).map(|q| (q - p).norm()),
+        ) else {
+            continue;
+        };
+        let sigma = (e * r / 2.0).sqrt();
+        if let Some(slot) = out.get_mut(*i) {
+            *slot = sigma.is_finite().then_some(sigma);
+        }
+    }
+    out
+}
+
 /// Standard deviation per axis (pixels) of the point the homography through
 /// `fitted` (template mm, undistorted pixel, that pixel's sigma) puts `t` at,
 /// from the fitted pixels' own errors carried through the fit (numerically:
@@ -792,6 +834,27 @@ mod tests {
         refined[1] = Some(image[1] + Vector2::new(6.0, -2.0));
         let why = plane_fit(&model, &mut refined, &lens, 1.0, 6).expect_err("only five on the plane");
         assert!(why.contains("only 5 holes"), "{why}");
+    }
+
+    #[test]
+    fn a_hole_the_others_disagree_with_gets_the_disagreement_as_its_sigma() {
+        let (model, image) = seen_2x1();
+        let lens = Lens { camera: None };
+        let exact: Vec<Option<Point2<f64>>> = image.iter().map(|p| Some(*p)).collect();
+        let sigmas = agreement_sigmas(&model, &exact, &lens);
+        assert!(sigmas.iter().all(|s| s.is_some_and(|s| s < 1e-6)), "{sigmas:?}");
+        // One hole 0.8 px off, as a fit pulled by a T-slot's branch would be.
+        let mut moved = exact.clone();
+        moved[4] = Some(image[4] + Vector2::new(0.8, 0.0));
+        let sigmas = agreement_sigmas(&model, &moved, &lens);
+        let own = sigmas[4].expect("fitted");
+        assert!(own > 0.3 && own < 0.8, "the moved hole: {own:.3} px");
+        let others = sigmas.iter().enumerate().filter(|(i, _)| *i != 4).filter_map(|(_, s)| *s).fold(0.0, f64::max);
+        assert!(others < own, "the others {others:.3} px, the moved hole {own:.3} px");
+        // Too few fitted holes to tell: no claim.
+        let mut few = exact;
+        few[0] = None;
+        assert!(agreement_sigmas(&model, &few, &lens).iter().all(Option::is_none));
     }
 
     #[test]
