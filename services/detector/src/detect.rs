@@ -201,16 +201,60 @@ impl Detector {
     }
 
     pub fn detect_grey(&self, grey: &GrayImage, camera: Option<&CameraModel>) -> DetectReport {
+        self.detect_sized(grey, camera, grey.width().max(grey.height()))
+    }
+
+    /// Looks for the outlet in `window` (`[x, y, width, height]` pixels, clipped
+    /// to the image) only, as [`Self::detect_grey`] would in the whole image: the
+    /// same stages and the same verification, with the choices that depend on
+    /// the image's size (the pyramid, the contrast of large images) made for the
+    /// whole image. Pixels, homography and candidates are in the whole image's
+    /// coordinates. Tracking ([`crate::track`]) looks where the outlet was.
+    pub fn detect_window(&self, grey: &GrayImage, camera: Option<&CameraModel>, window: [u32; 4]) -> DetectReport {
+        let (w, h) = grey.dimensions();
+        let [x, y] = [window[0].min(w), window[1].min(h)];
+        let [cw, ch] = [window[2].min(w - x), window[3].min(h - y)];
+        if cw == 0 || ch == 0 {
+            return DetectReport {
+                detection: None,
+                candidates: Vec::new(),
+                times: StageTimes::default(),
+                rejected: Some("the search window is empty".into()),
+            };
+        }
+        let crop = image::imageops::crop_imm(grey, x, y, cw, ch).to_image();
+        // Cropping moves the principal point only: distortion is a function of
+        // the normalised ray, which cropping does not change.
+        let camera =
+            camera.map(|c| CameraModel { width: cw, height: ch, cx: c.cx - x as f64, cy: c.cy - y as f64, ..*c });
+        let mut report = self.detect_sized(&crop, camera.as_ref(), w.max(h));
+        let (dx, dy) = (x as f64, y as f64);
+        if let Some(d) = report.detection.as_mut() {
+            for hole in &mut d.holes {
+                hole.pixel += Vector2::new(dx, dy);
+            }
+            d.homography = Matrix3::new(1.0, 0.0, dx, 0.0, 1.0, dy, 0.0, 0.0, 1.0) * d.homography;
+        }
+        for (c, _) in &mut report.candidates {
+            c.centre += Vector2::new(dx, dy);
+        }
+        report
+    }
+
+    /// [`Self::detect_grey`], with the size-dependent choices made for an image
+    /// whose larger side is `largest` (this one, or the frame it was cut from).
+    fn detect_sized(&self, grey: &GrayImage, camera: Option<&CameraModel>, largest: u32) -> DetectReport {
         let mut times = StageTimes::default();
-        let largest = grey.width().max(grey.height());
         let coarse_first = self.params.coarse_first_px > 0 && largest >= self.params.coarse_first_px;
-        if coarse_first && let Some((Ok(found), candidates)) = self.at_half_resolution(grey, camera, &mut times) {
+        if coarse_first
+            && let Some((Ok(found), candidates)) = self.at_half_resolution(grey, camera, largest, &mut times)
+        {
             return DetectReport { detection: Some(found), candidates, times, rejected: None };
         }
         let t = Instant::now();
         let _span = tracing::debug_span!("detect", width = grey.width(), height = grey.height()).entered();
         let mut params = self.params.candidates.clone();
-        if grey.width().max(grey.height()) >= self.params.large_image_px {
+        if largest >= self.params.large_image_px {
             // Larger images resolve holes well; texture (carpet, paint) brings
             // hundreds of faint blobs that a looser contrast would let in.
             params.min_contrast = params.min_contrast.max(self.params.large_image_min_contrast);
@@ -273,7 +317,7 @@ impl Detector {
             && !coarse_first
             && self.params.pyramid_min_px > 0
             && largest >= self.params.pyramid_min_px
-            && let Some((half, _)) = self.at_half_resolution(grey, camera, &mut times)
+            && let Some((half, _)) = self.at_half_resolution(grey, camera, largest, &mut times)
         {
             match half {
                 Ok(found) => detection = Some(found),
@@ -293,6 +337,7 @@ impl Detector {
         &self,
         grey: &GrayImage,
         camera: Option<&CameraModel>,
+        largest: u32,
         times: &mut StageTimes,
     ) -> Option<(LevelOutcome, Vec<(Candidate, Class)>)> {
         let half = half_resolution(grey)?;
@@ -300,7 +345,7 @@ impl Detector {
             Some(c) => Some(half_camera(c, half.width(), half.height())?),
             None => None,
         };
-        let report = self.detect_grey(&half, half_camera.as_ref());
+        let report = self.detect_sized(&half, half_camera.as_ref(), largest / 2);
         *times += report.times;
         // The level's candidates in this image's pixels.
         let candidates = report
@@ -783,13 +828,19 @@ fn half_resolution(grey: &GrayImage) -> Option<GrayImage> {
 /// The camera of the half-resolution image: focal lengths halved, the principal
 /// point where the same ray lands (OpenCV pixel centres), the same distortion.
 fn half_camera(camera: &CameraModel, width: u32, height: u32) -> Option<CameraModel> {
-    CameraModel::new(
+    // Checked as a camera of its own size, unless it is a window cut from a
+    // checked camera's frame (its principal point may lie far outside it).
+    let half = CameraModel {
         width,
         height,
-        [camera.fx / 2.0, camera.fy / 2.0, (camera.cx - 0.5) / 2.0, (camera.cy - 0.5) / 2.0],
-        camera.distortion,
-    )
-    .ok()
+        fx: camera.fx / 2.0,
+        fy: camera.fy / 2.0,
+        cx: (camera.cx - 0.5) / 2.0,
+        cy: (camera.cy - 0.5) / 2.0,
+        distortion: camera.distortion,
+    };
+    let finite = [half.fx, half.fy, half.cx, half.cy].iter().all(|v| v.is_finite());
+    (finite && half.fx >= 0.5 && half.fy >= 0.5 && width > 0 && height > 0).then_some(half)
 }
 
 fn centroid(points: &[Point2<f64>]) -> Point2<f64> {

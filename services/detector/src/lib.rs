@@ -9,6 +9,7 @@ pub mod detect;
 pub mod hashing;
 pub mod refine;
 pub mod template;
+pub mod track;
 pub mod verify;
 
 use nalgebra::Point2;

@@ -27,6 +27,13 @@ pub struct Config {
 pub struct DetectorConfig {
     /// `2x1`, `2x2` or a template file written by `outlet train`.
     pub template: String,
+    /// Look for the outlet first in a window around where the last frame had
+    /// it (the whole frame when that fails); every result is verified as a
+    /// whole-frame one. `false`: every frame searched whole.
+    pub tracking: bool,
+    /// With tracking: the whole frame is searched at least every this many
+    /// frames (a second outlet, a better view elsewhere).
+    pub full_frame_every: u32,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -81,6 +88,11 @@ pub struct SimCameraConfig {
     pub cloud: bool,
     /// Render this many views once and replay them (0: render every frame).
     pub views: u32,
+    /// Rendering every frame: each scene is seen for this many frames by a
+    /// camera moving towards the outlet (5 mm per frame, as an arm approaching
+    /// at 5 cm/s at 10 Hz), then the next scene: a video that tracking can
+    /// follow, with a jump every so often. 1: a new scene every frame.
+    pub frames_per_scene: u32,
 }
 
 impl Default for Config {
@@ -99,7 +111,8 @@ impl Default for Config {
 
 impl Default for DetectorConfig {
     fn default() -> Self {
-        Self { template: "2x1".into() }
+        let track = outlet_detector::track::TrackParams::default();
+        Self { template: "2x1".into(), tracking: true, full_frame_every: track.full_frame_every }
     }
 }
 
@@ -127,7 +140,16 @@ impl Default for PoseConfig {
 
 impl Default for SimCameraConfig {
     fn default() -> Self {
-        Self { rate_hz: 10.0, scenario: "fw_2x1white".into(), seed: 1, width: 640, height: 480, cloud: true, views: 0 }
+        Self {
+            rate_hz: 10.0,
+            scenario: "fw_2x1white".into(),
+            seed: 1,
+            width: 640,
+            height: 480,
+            cloud: true,
+            views: 0,
+            frames_per_scene: 10,
+        }
     }
 }
 
@@ -155,6 +177,9 @@ impl Config {
         outlet_protocol::shm::prefix(&self.domain).context("key `domain`")?;
         if self.heartbeat_ms == 0 || self.heartbeat_ms > 60_000 {
             bail!("key `heartbeat_ms`: {} is not in 1..=60000", self.heartbeat_ms);
+        }
+        if self.detector.tracking && !(2..=10_000).contains(&self.detector.full_frame_every) {
+            bail!("key `detector.full_frame_every`: {} is not in 2..=10000", self.detector.full_frame_every);
         }
         if !(self.normal.sigma_at_1m > 0.0 && self.normal.sigma_at_1m < 1.0) {
             bail!("key `normal.sigma_at_1m`: {} is not in (0, 1) m", self.normal.sigma_at_1m);
@@ -190,6 +215,9 @@ impl Config {
                 sim.scenario,
                 outlet_sim::SCENARIOS.join(", ")
             );
+        }
+        if !(1..=10_000).contains(&sim.frames_per_scene) {
+            bail!("key `sim_camera.frames_per_scene`: {} is not in 1..=10000", sim.frames_per_scene);
         }
         if !(64..=4096).contains(&sim.width) || !(48..=4096).contains(&sim.height) {
             bail!("keys `sim_camera.width`/`height`: {}x{} is not a camera size", sim.width, sim.height);

@@ -35,6 +35,9 @@ pub struct DemoArgs {
     /// The detector's template (default: the scenario's outlet, `2x1` or `2x2`).
     #[arg(long)]
     pub template: Option<String>,
+    /// Search every frame whole (`detector.tracking = false`).
+    #[arg(long)]
+    pub no_tracking: bool,
     /// Where the services' logs go (default: a folder in the temp dir).
     #[arg(long)]
     pub logs: Option<PathBuf>,
@@ -155,6 +158,9 @@ pub fn demo(args: DemoArgs) -> Result<()> {
         .clone()
         .unwrap_or_else(|| if config.sim_camera.scenario.contains("2x2") { "2x2" } else { "2x1" }.to_string());
     config.detector.template = template.clone();
+    if args.no_tracking {
+        config.detector.tracking = false;
+    }
     config.pose.template = template;
     config.check().context("configuration")?;
     if let Some(d) = args.duration

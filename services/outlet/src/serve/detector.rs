@@ -7,6 +7,7 @@ use anyhow::Result;
 use iceoryx2::prelude::*;
 use outlet::health::Health;
 use outlet_detector::detect::{Detector, DetectorParams};
+use outlet_detector::track::{TrackParams, Tracker};
 use outlet_protocol::wire::{DetectionMsg, FrameHeader, HoleMsg, MAX_HOLES, PixelFormat, SCHEMA_VERSION, service};
 use outlet_protocol::{HoleKind, shm};
 use std::time::Instant;
@@ -14,6 +15,9 @@ use std::time::Instant;
 pub fn run(rt: &Runtime) -> Result<()> {
     let template = &rt.config.detector.template;
     let detector = Detector::new(outlet::templates::load(template)?, DetectorParams::default());
+    let config = &rt.config.detector;
+    let full_frame_every = if config.tracking { config.full_frame_every } else { 0 };
+    let mut tracker = Tracker::new(TrackParams { full_frame_every, ..TrackParams::default() });
     let subscriber =
         shm::frames(&rt.node)?.subscriber_builder().create().map_err(|e| anyhow::anyhow!("frame subscriber: {e:?}"))?;
     let listener = rt.listener(service::FRAMES)?;
@@ -36,15 +40,17 @@ pub fn run(rt: &Runtime) -> Result<()> {
                 let header = *sample.user_header();
                 let checked =
                     header.validate(sample.payload().len()).map_err(|e| e.to_string()).and_then(|(format, camera)| {
-                        rgb_of(&header, format, sample.payload())
-                            .map(|image| (image, camera))
+                        grey_of_frame(&header, format, sample.payload())
+                            .map(|grey| (grey, camera))
                             .ok_or_else(|| format!("frame {}: pixels do not fill the image", header.frame_id))
                     });
-                // The pixels are copied out: give the shared memory back before detecting.
+                // The grey image is all the detector reads: give the shared
+                // memory back before detecting.
                 drop(sample);
                 match checked {
-                    Ok((image, camera)) => {
-                        let report = detector.detect(&image, Some(&camera));
+                    Ok((grey, camera)) => {
+                        let time_s = header.capture_time_ns as f64 * 1e-9;
+                        let report = tracker.detect_grey(&detector, &grey, Some(&camera), time_s).report;
                         let detect_ms = started.elapsed().as_secs_f64() * 1e3;
                         let msg = detection_msg(&header, &camera, report.detection.as_ref(), detect_ms);
                         if output.send(msg) {
@@ -65,21 +71,21 @@ pub fn run(rt: &Runtime) -> Result<()> {
     Ok(())
 }
 
-/// The colour image the detector reads, from a frame's pixels (any stride);
+/// The detector's grey image ([`outlet_detector::grey_of`]: the brightest
+/// channel) straight from a frame's pixels (any stride), without a colour copy;
 /// None when the payload is shorter than the header says.
-fn rgb_of(header: &FrameHeader, format: PixelFormat, pixels: &[u8]) -> Option<image::RgbImage> {
+fn grey_of_frame(header: &FrameHeader, format: PixelFormat, pixels: &[u8]) -> Option<image::GrayImage> {
     let (w, h, stride) = (header.width as usize, header.height as usize, header.stride as usize);
     let row_bytes = w * format.channels();
-    let mut rgb = Vec::with_capacity(w * h * 3);
-    for row in pixels.chunks(stride).take(h) {
+    let mut grey = Vec::with_capacity(w * h);
+    for row in pixels.chunks(stride.max(1)).take(h) {
         let row = row.get(..row_bytes)?;
         match format {
-            PixelFormat::Mono8 => row.iter().for_each(|&v| rgb.extend_from_slice(&[v, v, v])),
-            PixelFormat::Rgb8 => rgb.extend_from_slice(row),
-            PixelFormat::Bgr8 => row.chunks_exact(3).for_each(|p| rgb.extend_from_slice(&[p[2], p[1], p[0]])),
+            PixelFormat::Mono8 => grey.extend_from_slice(row),
+            PixelFormat::Rgb8 | PixelFormat::Bgr8 => grey.extend(row.chunks_exact(3).map(|p| p[0].max(p[1]).max(p[2]))),
         }
     }
-    image::RgbImage::from_raw(header.width, header.height, rgb)
+    image::GrayImage::from_raw(header.width, header.height, grey)
 }
 
 fn detection_msg(

@@ -90,6 +90,9 @@ pub struct SimCameraArgs {
     /// Render this many views once and replay them; 0 renders every frame (`sim_camera.views`).
     #[arg(long)]
     pub views: Option<u32>,
+    /// Frames each scene is seen for, the camera approaching it; 1: a new scene every frame (`sim_camera.frames_per_scene`).
+    #[arg(long)]
+    pub frames_per_scene: Option<u32>,
     /// No stereo clouds.
     #[arg(long)]
     pub no_cloud: bool,
@@ -115,6 +118,9 @@ impl SimCameraArgs {
         }
         if let Some(v) = self.views {
             sim.views = v;
+        }
+        if let Some(v) = self.frames_per_scene {
+            sim.frames_per_scene = v;
         }
         if self.no_cloud {
             sim.cloud = false;

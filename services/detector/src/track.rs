@@ -1,0 +1,143 @@
+//! Tracking (beyond the paper): when the last frame had a verified outlet, look
+//! for it first in a window around where it was, grown with the time since; the
+//! whole frame is searched when the window finds nothing, when the last outlet
+//! is too old, and every [`TrackParams::full_frame_every`] frames regardless. A
+//! window's outlet goes through exactly the verification of a full frame's
+//! ([`Detector::detect_window`]), so tracking can miss but cannot add a wrong
+//! outlet that a full-frame search would not have given.
+
+use crate::detect::{DetectReport, Detector};
+use image::GrayImage;
+use nalgebra::Point2;
+use outlet_protocol::CameraModel;
+
+/// When and where to track.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackParams {
+    /// A full-frame search at least every this many frames, however well the
+    /// window does (a second outlet, a better view elsewhere); 0 or 1 = never
+    /// track.
+    pub full_frame_every: u32,
+    /// Window margin on each side of the last outlet's holes, as a multiple of
+    /// their extent: the plate and some wall around them, which the candidate
+    /// stage's probes and the hashing's clutter test look at.
+    pub margin: f64,
+    /// More margin per second since the outlet was last seen (multiples of the
+    /// extent): an arm approaching at 10 cm/s from 30 cm grows the outlet by a
+    /// third in a second, and turns of the head move it by more.
+    pub margin_per_s: f64,
+    /// At least this many pixels of margin on each side.
+    pub min_margin_px: f64,
+    /// An outlet last seen longer ago than this (s) is looked for in the whole
+    /// frame.
+    pub max_age_s: f64,
+}
+
+impl Default for TrackParams {
+    fn default() -> Self {
+        Self { full_frame_every: 30, margin: 0.6, margin_per_s: 4.0, min_margin_px: 12.0, max_age_s: 0.5 }
+    }
+}
+
+/// Where a frame was searched.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Searched {
+    /// Only the window `[x, y, width, height]` around the last outlet.
+    Window([u32; 4]),
+    /// The whole frame (after a window that found nothing, if `after_window`).
+    FullFrame { after_window: bool },
+}
+
+/// One frame's result and how it was searched.
+#[derive(Debug, Clone)]
+pub struct Tracked {
+    pub report: DetectReport,
+    pub searched: Searched,
+}
+
+/// The tracking state of one camera's frames.
+#[derive(Debug, Clone, Default)]
+pub struct Tracker {
+    params: TrackParams,
+    /// The last verified outlet's hole pixels and its frame's time (s).
+    last: Option<(Vec<Point2<f64>>, f64)>,
+    /// Frames searched by window only since the last full-frame search.
+    windows_since_full: u32,
+}
+
+impl Tracker {
+    pub fn new(params: TrackParams) -> Self {
+        Self { params, last: None, windows_since_full: 0 }
+    }
+
+    /// Forgets the last outlet: the next frame is searched whole.
+    pub fn reset(&mut self) {
+        self.last = None;
+        self.windows_since_full = 0;
+    }
+
+    /// Detects in `grey`, captured at `time_s` (any clock, seconds; a time
+    /// going backwards, as in a replay starting over, forgets the last outlet).
+    pub fn detect_grey(
+        &mut self,
+        detector: &Detector,
+        grey: &GrayImage,
+        camera: Option<&CameraModel>,
+        time_s: f64,
+    ) -> Tracked {
+        let window = self.window(grey.width(), grey.height(), time_s);
+        let mut window_times = None;
+        if let Some(window) = window {
+            let report = detector.detect_window(grey, camera, window);
+            if report.detection.is_some() {
+                self.windows_since_full += 1;
+                self.remember(&report, time_s);
+                return Tracked { report, searched: Searched::Window(window) };
+            }
+            window_times = Some(report.times);
+        }
+        let mut report = detector.detect_grey(grey, camera);
+        if let Some(t) = window_times {
+            report.times += t;
+        }
+        self.windows_since_full = 0;
+        self.remember(&report, time_s);
+        Tracked { report, searched: Searched::FullFrame { after_window: window.is_some() } }
+    }
+
+    fn remember(&mut self, report: &DetectReport, time_s: f64) {
+        self.last = report.detection.as_ref().map(|d| (d.holes.iter().map(|h| h.pixel).collect(), time_s));
+    }
+
+    /// The window to search first, if tracking applies to this frame.
+    fn window(&mut self, width: u32, height: u32, time_s: f64) -> Option<[u32; 4]> {
+        let p = &self.params;
+        if p.full_frame_every <= 1 || self.windows_since_full + 1 >= p.full_frame_every {
+            return None;
+        }
+        let (holes, then) = self.last.as_ref()?;
+        let age = time_s - then;
+        if !(age.is_finite() && age >= 0.0 && age <= p.max_age_s) {
+            self.last = None;
+            return None;
+        }
+        let (mut x0, mut y0, mut x1, mut y1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+        for h in holes {
+            (x0, y0, x1, y1) = (x0.min(h.x), y0.min(h.y), x1.max(h.x), y1.max(h.y));
+        }
+        let extent = (x1 - x0).max(y1 - y0);
+        let margin = (extent * (p.margin + p.margin_per_s * age)).max(p.min_margin_px);
+        if !(extent.is_finite() && margin.is_finite()) {
+            return None;
+        }
+        let clamp = |v: f64, size: u32| v.clamp(0.0, size as f64);
+        let (left, top) = (clamp((x0 - margin).floor(), width), clamp((y0 - margin).floor(), height));
+        let (right, bottom) = (clamp((x1 + margin).ceil() + 1.0, width), clamp((y1 + margin).ceil() + 1.0, height));
+        let (w, h) = (right - left, bottom - top);
+        // A window that is most of the frame saves nothing.
+        if w < 1.0 || h < 1.0 || w * h > 0.6 * width as f64 * height as f64 {
+            return None;
+        }
+        Some([left as u32, top as u32, w as u32, h as u32])
+    }
+}

@@ -1,0 +1,155 @@
+//! Tracking: a window around the last outlet first, the whole frame when that
+//! fails. It must follow a moving outlet with the accuracy of full-frame
+//! detection, and never give a wrong outlet when the outlet leaves the view, the
+//! camera jumps or a second outlet comes in.
+
+use image::RgbImage;
+use nalgebra::{Point2, Vector3};
+use outlet_detector::detect::Detection;
+use outlet_detector::grey_of;
+use outlet_detector::track::{Searched, TrackParams, Tracker};
+use outlet_sim::render_frame;
+use outlet_sim::scenario::pose_looking;
+
+mod common;
+use common::{detector, plain_scene, truth_pixels, worst_error};
+
+const FRAME_S: f64 = 1.0 / 30.0;
+
+/// Holes within this of the truth are the outlet's (pixels); a wrong outlet has
+/// a hole further than this from every true hole.
+const RIGHT_PX: f64 = 1.5;
+
+fn every_hole_near(d: &Detection, truth: &[Point2<f64>]) -> bool {
+    worst_error(d, truth) < RIGHT_PX
+}
+
+#[test]
+fn an_approaching_outlet_is_tracked_in_windows_with_full_frame_accuracy() {
+    let detector = detector();
+    let mut tracker = Tracker::new(TrackParams::default());
+    let mut windows = 0;
+    for k in 0..16 {
+        // 40 cm to 28 cm in half a second, turning and sliding a little.
+        let mut scene = plain_scene(7, 0.40 - 0.0075 * k as f64, 12.0 + 0.5 * k as f64, 40.0, 5.0 - 0.4 * k as f64);
+        scene.pose.translation.vector += Vector3::new(0.002 * k as f64, -0.001 * k as f64, 0.0);
+        let frame = render_frame(&scene, "x");
+        let grey = grey_of(&frame.frame.image);
+        let truth = truth_pixels(&frame);
+        let tracked = tracker.detect_grey(&detector, &grey, Some(&scene.camera), k as f64 * FRAME_S);
+        let full = detector.detect_grey(&grey, Some(&scene.camera));
+        let (Some(t), Some(f)) = (&tracked.report.detection, &full.detection) else {
+            panic!("frame {k}: tracked {:?}, full frame {:?}", tracked.report.rejected, full.rejected);
+        };
+        assert!(every_hole_near(t, &truth), "frame {k}: tracked holes {:.2} px off", worst_error(t, &truth));
+        // The same holes as a full-frame search: the window changes where the
+        // outlet is looked for, not how its holes are measured.
+        for (a, b) in t.holes.iter().zip(&f.holes) {
+            assert!((a.pixel - b.pixel).norm() < 0.05, "frame {k}: {} against {}", a.pixel, b.pixel);
+            assert_eq!((a.kind, a.refined), (b.kind, b.refined));
+        }
+        if let Searched::Window(w) = tracked.searched {
+            windows += 1;
+            assert!(w[2] * w[3] < grey.width() * grey.height() / 3, "frame {k}: window {w:?}");
+        }
+    }
+    assert!(windows >= 13, "only {windows} of 15 frames after the first were tracked in a window");
+}
+
+#[test]
+fn an_outlet_leaving_the_view_is_never_reported_with_holes_in_wrong_places() {
+    let detector = detector();
+    let mut tracker = Tracker::new(TrackParams::default());
+    let (mut found, mut gone) = (0, 0);
+    for k in 0..14 {
+        // Slides right, 2.5 cm per frame, out of the image after half the frames.
+        let mut scene = plain_scene(8, 0.33, 5.0, 0.0, 0.0);
+        scene.pose.translation.vector += Vector3::new(0.025 * k as f64, 0.0, 0.0);
+        let frame = render_frame(&scene, "x");
+        let truth = truth_pixels(&frame);
+        let inside = truth.iter().all(|p| p.x > 4.0 && p.x < 636.0);
+        let tracked = tracker.detect_grey(&detector, &grey_of(&frame.frame.image), None, k as f64 * FRAME_S);
+        match &tracked.report.detection {
+            Some(d) => {
+                assert!(inside, "frame {k}: an outlet reported with holes out of the image");
+                assert!(every_hole_near(d, &truth), "frame {k}: holes {:.2} px off", worst_error(d, &truth));
+                found += 1;
+            }
+            None if !inside => gone += 1,
+            None => {}
+        }
+    }
+    assert!(found >= 4 && gone >= 3, "found in {found} frames, rightly none in {gone}");
+}
+
+#[test]
+fn a_camera_jump_gives_the_new_outlet_or_none() {
+    let detector = detector();
+    let mut tracker = Tracker::new(TrackParams::default());
+    let near = plain_scene(9, 0.32, 10.0, 0.0, 0.0);
+    let first = render_frame(&near, "a");
+    let d = tracker.detect_grey(&detector, &grey_of(&first.frame.image), None, 0.0);
+    assert!(d.report.detection.is_some(), "the first view is found");
+    // One frame later the head has turned: the outlet is elsewhere, smaller,
+    // turned in the image.
+    let mut far = plain_scene(10, 0.45, 20.0, 120.0, 35.0);
+    far.pose.translation.vector += Vector3::new(-0.08, 0.05, 0.0);
+    let second = render_frame(&far, "b");
+    let truth = truth_pixels(&second);
+    let tracked = tracker.detect_grey(&detector, &grey_of(&second.frame.image), None, FRAME_S);
+    assert_eq!(tracked.searched, Searched::FullFrame { after_window: true });
+    let d = tracked.report.detection.expect("the outlet's new place is found by the whole-frame search");
+    assert!(every_hole_near(&d, &truth), "holes {:.2} px off", worst_error(&d, &truth));
+    // And a jump to a wall without an outlet gives none.
+    let mut blank = plain_scene(11, 0.32, 0.0, 0.0, 0.0);
+    blank.plates.clear();
+    let empty = render_frame(&blank, "c");
+    let tracked = tracker.detect_grey(&detector, &grey_of(&empty.frame.image), None, 2.0 * FRAME_S);
+    assert!(tracked.report.detection.is_none(), "an outlet reported on a bare wall");
+}
+
+/// Copies the rectangle around `holes` (grown by `pad`) of `from` into `to`,
+/// moved by `(dx, dy)`.
+fn paste(to: &mut RgbImage, from: &RgbImage, holes: &[Point2<f64>], pad: f64, dx: i64, dy: i64) {
+    let x0 = holes.iter().map(|p| p.x).fold(f64::INFINITY, f64::min) - pad;
+    let x1 = holes.iter().map(|p| p.x).fold(f64::NEG_INFINITY, f64::max) + pad;
+    let y0 = holes.iter().map(|p| p.y).fold(f64::INFINITY, f64::min) - pad;
+    let y1 = holes.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max) + pad;
+    for y in y0.max(0.0) as i64..y1.min(from.height() as f64) as i64 {
+        for x in x0.max(0.0) as i64..x1.min(from.width() as f64) as i64 {
+            let (u, v) = (x + dx, y + dy);
+            if u >= 0 && v >= 0 && (u as u32) < to.width() && (v as u32) < to.height() {
+                to.put_pixel(u as u32, v as u32, *from.get_pixel(x as u32, y as u32));
+            }
+        }
+    }
+}
+
+#[test]
+fn a_second_outlet_coming_in_never_gives_a_mixed_or_wrong_outlet() {
+    let detector = detector();
+    let mut tracker = Tracker::new(TrackParams::default());
+    let mut scene = plain_scene(12, 0.40, 0.0, 0.0, 0.0);
+    scene.pose = pose_looking(Vector3::z(), 0.40, 0.0, 0.0, 0.0);
+    scene.pose.translation.vector += Vector3::new(-0.06, 0.0, 0.0);
+    let frame = render_frame(&scene, "x");
+    let truth = truth_pixels(&frame);
+    let mut reported = 0;
+    // A copy of the outlet comes in from the right edge towards the first one.
+    for (k, dx) in [400i64, 330, 260, 200, 150, 120, 100].into_iter().enumerate() {
+        let mut image = frame.frame.image.clone();
+        paste(&mut image, &frame.frame.image, &truth, 28.0, dx, 0);
+        let copy: Vec<Point2<f64>> = truth.iter().map(|p| Point2::new(p.x + dx as f64, p.y)).collect();
+        let tracked = tracker.detect_grey(&detector, &grey_of(&image), None, k as f64 * FRAME_S);
+        if let Some(d) = &tracked.report.detection {
+            reported += 1;
+            assert!(
+                every_hole_near(d, &truth) || every_hole_near(d, &copy),
+                "frame {k} (copy {dx} px right): holes neither the outlet's ({:.1} px) nor the copy's ({:.1} px)",
+                worst_error(d, &truth),
+                worst_error(d, &copy)
+            );
+        }
+    }
+    assert!(reported >= 2, "the outlet was reported in only {reported} frames");
+}
