@@ -273,12 +273,17 @@ fn fit(
     let mut cov_dx = Vec::with_capacity(pixels.len());
     let mut cov_dy = Vec::with_capacity(pixels.len());
     let step = 0.05;
+    let mut abs: Vec<f64> = Vec::with_capacity(pixels.len());
     for _ in 0..params.iterations {
         coverage(t, &mut cov);
         let (p, r) = solve(&cov, &weights)?;
-        let mut sorted: Vec<f64> = r.iter().map(|v| v.abs()).collect();
-        sorted.sort_by(f64::total_cmp);
-        let k = 1.5 * (sorted[sorted.len() / 2] / 0.6745).max(1.0);
+        // The median absolute residual (a selection, not a sort: this runs
+        // every iteration of every hole).
+        abs.clear();
+        abs.extend(r.iter().map(|v| v.abs()));
+        let mid = abs.len() / 2;
+        let median = *abs.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let k = 1.5 * (median / 0.6745).max(1.0);
         if robust {
             for (w, v) in weights.iter_mut().zip(&r) {
                 *w = if v.abs() <= k { 1.0 } else { k / v.abs() };

@@ -35,7 +35,7 @@ pub struct TrackParams {
 
 impl Default for TrackParams {
     fn default() -> Self {
-        Self { full_frame_every: 30, margin: 0.6, margin_per_s: 4.0, min_margin_px: 12.0, max_age_s: 0.5 }
+        Self { full_frame_every: 30, margin: 0.3, margin_per_s: 4.0, min_margin_px: 12.0, max_age_s: 0.5 }
     }
 }
 
