@@ -153,3 +153,31 @@ fn a_second_outlet_coming_in_never_gives_a_mixed_or_wrong_outlet() {
     }
     assert!(reported >= 2, "the outlet was reported in only {reported} frames");
 }
+
+#[test]
+fn tracking_follows_an_outlet_growing_four_times_in_a_second() {
+    let detector = detector();
+    let mut tracker = Tracker::new(TrackParams::default());
+    let (mut found, mut windows, mut full) = (0, 0, 0);
+    let frames = 30;
+    for k in 0..frames {
+        // 40 cm to 10 cm in one second at 30 Hz: the holes grow four times.
+        let distance = 0.40 * (0.25f64).powf(k as f64 / (frames - 1) as f64);
+        let scene = plain_scene(13, distance, 8.0, 60.0, 3.0);
+        let frame = render_frame(&scene, "x");
+        let truth = truth_pixels(&frame);
+        let grey = grey_of(&frame.frame.image);
+        let tracked = tracker.detect_grey(&detector, &grey, Some(&scene.camera), k as f64 * FRAME_S);
+        if let Some(d) = &tracked.report.detection {
+            assert!(every_hole_near(d, &truth), "{distance:.3} m: holes {:.2} px off", worst_error(d, &truth));
+            found += 1;
+            match tracked.searched {
+                Searched::Window(_) => windows += 1,
+                Searched::FullFrame { .. } => full += 1,
+            }
+        }
+    }
+    println!("found {found} of {frames}: {windows} in a window, {full} in the whole frame");
+    assert!(found >= frames - 2, "found in {found} of {frames} frames");
+    assert!(windows >= found - 4, "only {windows} of {found} found in a window");
+}
