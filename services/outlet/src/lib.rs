@@ -1,9 +1,10 @@
 //! What the `outlet` command shares with other programs and tests: the built-in
-//! templates (trained from rendered views), the sidecar's configuration, and the
-//! counters behind each service's heartbeat.
+//! templates (trained from rendered views), the sidecar's configuration, the
+//! counters behind each service's heartbeat, and MCAP recordings.
 
 pub mod config;
 pub mod health;
+pub mod recording;
 pub mod templates;
 
 /// What a stereo wall plane's own fit cannot know, one sigma each: how far a real

@@ -38,9 +38,9 @@ enum Command {
     Eval(eval_cmd::EvalArgs),
     /// Run one of the sidecar's services on iceoryx2 shared memory.
     Serve(serve::ServeArgs),
-    /// Record the camera's frames and clouds from shared memory into a file.
+    /// Record the camera's frames and clouds and the services' results from shared memory into an MCAP file.
     Record(record::RecordArgs),
-    /// Play a recording back into shared memory with its original timing.
+    /// Play an MCAP recording (ours, or a ROS 2 bag of a camera) into shared memory with its original timing.
     Replay(record::ReplayArgs),
     /// The whole sidecar on the simulated camera: each result with its error and latency.
     Demo(demo::DemoArgs),

@@ -285,8 +285,15 @@ pub fn image_of(header: Header, width: u32, height: u32, rgb: &[u8], format: Pix
 /// Points (x, y, z, metres) as an unorganised PointCloud2 of float32 x, y, z
 /// packed in 12-byte points: for programs that play a ROS 2 depth camera.
 pub fn cloud_of(header: Header, points: &[[f32; 3]]) -> PointCloud2 {
+    cloud_of_xyz(header, points.as_flattened())
+}
+
+/// [`cloud_of`] for x, y, z values one after the other, as a cloud crosses
+/// shared memory (a last incomplete point is left out).
+pub fn cloud_of_xyz(header: Header, xyz: &[f32]) -> PointCloud2 {
     let field = |name: &str, offset| PointField { name: name.into(), offset, datatype: PointField::FLOAT32, count: 1 };
-    let width = points.len().min(u32::MAX as usize / 12) as u32;
+    let width = (xyz.len() / 3).min(u32::MAX as usize / 12) as u32;
+    let values = &xyz[..3 * width as usize];
     PointCloud2 {
         header,
         height: 1,
@@ -295,9 +302,30 @@ pub fn cloud_of(header: Header, points: &[[f32; 3]]) -> PointCloud2 {
         is_bigendian: false,
         point_step: 12,
         row_step: 12 * width,
-        data: points.iter().take(width as usize).flatten().flat_map(|v| v.to_le_bytes()).collect(),
-        is_dense: points.iter().flatten().all(|v| v.is_finite()),
+        data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        is_dense: values.iter().all(|v| v.is_finite()),
     }
+}
+
+/// A frame from shared memory as a ROS 2 camera driver publishes it, the other
+/// way from [`frame_of`]: the Image (its rows as they are, `step` the frame's
+/// stride) and the CameraInfo of its intrinsics and distortion, both stamped
+/// with the capture time, in `frame_id` (the camera's optical frame).
+pub fn image_and_info_of(frame: &FrameHeader, pixels: &[u8], frame_id: &str) -> Result<(Image, CameraInfo), Rejection> {
+    let (format, camera) = frame.validate(pixels.len()).map_err(|e| Rejection::Frame(e.to_string()))?;
+    let header = Header { stamp: ns_to_time(frame.capture_time_ns), frame_id: frame_id.to_string() };
+    let rows = frame.stride as usize * frame.height as usize;
+    let data = pixels.get(..rows).ok_or_else(|| Rejection::Frame(format!("{} bytes of pixels", pixels.len())))?;
+    let image = Image {
+        header: header.clone(),
+        height: frame.height,
+        width: frame.width,
+        encoding: encoding_of(format).into(),
+        is_bigendian: 0,
+        step: frame.stride,
+        data: data.to_vec(),
+    };
+    Ok((image, camera_info_of(&camera, header)))
 }
 
 /// A rotation matrix as a unit quaternion; None when it is not a rotation
@@ -684,6 +712,28 @@ mod tests {
         let (stamp, xyz) = xyz_of(&cloud_of(header, &points)).expect("cloud");
         assert_eq!(stamp, 9_000_000_008);
         assert!(same(&xyz, &points));
+    }
+
+    #[test]
+    fn a_frame_from_shared_memory_becomes_an_image_and_its_camera_info_and_back() {
+        let camera =
+            CameraModel::new(4, 2, [500.0, 501.0, 1.5, 0.5], [-0.1, 0.01, 0.001, -0.002, 0.0]).expect("camera");
+        let mut frame = FrameHeader::new(7, 1_700_000_000_250_000_000, PixelFormat::Bgr8, &camera);
+        frame.stride = 14;
+        let pixels: Vec<u8> = (0..28).collect();
+        let (image, info) = image_and_info_of(&frame, &pixels, "cam").expect("converted");
+        assert_eq!((image.width, image.height, image.step, image.encoding.as_str()), (4, 2, 14, "bgr8"));
+        assert_eq!(image.data, pixels);
+        assert_eq!(image.header.stamp, Time { sec: 1_700_000_000, nanosec: 250_000_000 });
+        assert_eq!(info.header, image.header);
+        assert_eq!(info.k, [500.0, 0.0, 1.5, 0.0, 501.0, 0.5, 0.0, 0.0, 1.0]);
+        assert_eq!(info.d, camera.distortion.to_vec());
+        let (back, back_pixels, back_camera) = frame_from(&image, &info, 7).expect("back");
+        assert_eq!((back, back_pixels, back_camera), (frame, &pixels[..], camera));
+        assert!(matches!(image_and_info_of(&frame, &pixels[..27], "cam"), Err(Rejection::Frame(_))));
+        // Flat x, y, z values; an incomplete last point is left out.
+        let (_, xyz) = xyz_of(&cloud_of_xyz(image.header, &[1.0, 2.0, 3.0, f32::NAN, 5.0, 6.0, 7.0])).expect("cloud");
+        assert!(same(&xyz, &[[1.0, 2.0, 3.0], [f32::NAN, 5.0, 6.0]]));
     }
 
     #[test]

@@ -3,6 +3,8 @@
 //! diagnostics go out to it.
 //!
 //! - [`msgs`]: the ROS 2 messages, each with its DDS type name.
+//! - [`cdr`]: the messages as CDR bytes with their `.msg` definitions, as
+//!   rosbag2 stores them in MCAP files (`outlet record`, `outlet replay`).
 //! - [`convert`]: ROS 2 messages to and from the sidecar's wire types, pure
 //!   functions that check everything that comes from the network.
 //! - [`bridge`]: the DDS participant (ros2-client on rustdds) on the configured
@@ -12,6 +14,7 @@
 //! (`services/outlet/src/serve/ros2_bridge.rs`).
 
 pub mod bridge;
+pub mod cdr;
 pub mod convert;
 pub mod msgs;
 
