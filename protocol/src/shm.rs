@@ -80,6 +80,33 @@ pub fn remove_node_counter(domain: &str) {
     }
 }
 
+/// Nodes of `domain` that may still be running: alive, or whose state this
+/// process cannot tell (dead nodes, which the next node cleans up, are not
+/// counted).
+pub fn nodes_not_dead(domain: &str) -> Result<usize, ShmError> {
+    let config = config(domain)?;
+    let mut count = 0;
+    Node::<ipc::Service>::list(&config, |state| {
+        if !matches!(state, NodeState::Dead(_)) {
+            count += 1;
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| err("listing the domain's nodes", e))?;
+    Ok(count)
+}
+
+/// Called by a process whose nodes of `domain` are all gone: when no node of
+/// the domain may still run, removes iceoryx2's node counter, the one file a
+/// domain otherwise keeps after its last service stops cleanly. A node that
+/// starts meanwhile is unharmed: node ids also hold the process id and the
+/// creation time, so a counter starting again from 0 repeats none.
+pub fn remove_node_counter_if_last(domain: &str) {
+    if matches!(nodes_not_dead(domain), Ok(0)) {
+        remove_node_counter(domain);
+    }
+}
+
 fn for_node_counter(prefix: &str, mut f: impl FnMut(&std::path::Path)) {
     let Ok(entries) = std::fs::read_dir("/dev/shm") else { return };
     for entry in entries.flatten() {

@@ -134,6 +134,26 @@ impl Sidecar {
         Ok(args)
     }
 
+    /// SIGTERM, as a robot's supervisor stops a service, and waits (at most
+    /// 5 s) for it to end.
+    pub fn terminate(&mut self, service: &str) -> Result<(), String> {
+        use nix::sys::signal::{Signal, kill};
+        let k = self.children.iter().position(|c| c.0 == service).ok_or(format!("no {service}"))?;
+        let (_, _, mut child) = self.children.remove(k);
+        let pid = i32::try_from(child.id()).map_err(|e| e.to_string())?;
+        kill(nix::unistd::Pid::from_raw(pid), Signal::SIGTERM).map_err(|e| e.to_string())?;
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while matches!(child.try_wait(), Ok(None)) {
+            if Instant::now() > deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                return Err(format!("{service} did not end within 5 s of SIGTERM"));
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        Ok(())
+    }
+
     /// The name of a service that is no longer running, if any.
     pub fn dead(&mut self) -> Option<String> {
         self.children.iter_mut().find_map(|c| (!matches!(c.2.try_wait(), Ok(None))).then(|| c.0.clone()))

@@ -248,3 +248,26 @@ fn bad_frames_and_clouds_are_counted_as_rejected_logged_and_the_services_go_on()
     assert!(log.contains("cloud rejected"), "normal log:\n{log}");
     Ok(())
 }
+
+#[test]
+fn services_stopped_one_by_one_leave_nothing_in_shared_memory() -> TestResult {
+    let domain = domain("stop1by1");
+    let mut sidecar = Sidecar::new(&domain)?;
+    let mut client = Client::connect(&domain)?;
+    start_pipeline(&mut sidecar)?;
+    wait_for(Duration::from_secs(60), || client.wait_next(Duration::from_millis(200)).ok().flatten())
+        .ok_or(format!("no result from the pipeline; logs in {}", sidecar.logs.display()))?;
+    drop(client);
+    let counter = |files: &[(String, u32)]| files.iter().any(|(name, _)| name.ends_with(".global_mgmt"));
+    for (k, service) in ["sim-camera", "detector", "normal", "pose"].into_iter().enumerate() {
+        sidecar.terminate(service)?;
+        let files = shm_files(&domain);
+        if k < 3 {
+            // Others still run: the domain's node counter stays theirs.
+            assert!(counter(&files), "iceoryx2's node counter went while services still ran: {files:?}");
+        } else {
+            assert!(files.is_empty(), "the last service stopped and left {files:?}");
+        }
+    }
+    Ok(())
+}

@@ -173,6 +173,7 @@ pub fn serve(args: ServeArgs) -> Result<()> {
         }
     };
     config.check().context("configuration")?;
+    let domain = config.domain.clone();
     let runtime = Runtime::start(name, config)?;
     let result = match args.service {
         Service::Normal { .. } => normal::run(&runtime),
@@ -181,6 +182,10 @@ pub fn serve(args: ServeArgs) -> Result<()> {
         Service::SimCamera(_) => sim_camera::run(&runtime),
         Service::Ros2Bridge { .. } => ros2_bridge::run(&runtime),
     };
+    // The node goes first; the last service of the domain to stop leaves
+    // nothing in /dev/shm behind it.
+    drop(runtime);
+    outlet_protocol::shm::remove_node_counter_if_last(&domain);
     result.with_context(|| format!("{name} service"))
 }
 
