@@ -21,7 +21,19 @@ pub fn camera() -> CameraModel {
 /// A plain white 2x1 scene (no spots, cracks or occluders) seen from `distance`
 /// m, `off_axis` and `azimuth` degrees, turned by `roll` degrees in the image.
 pub fn plain_scene(index: u64, distance: f64, off_axis: f64, azimuth: f64, roll: f64) -> Scene {
-    let mut scene = sample_scene("fw_2x1white", 4242, index, &camera()).expect("scene");
+    plain_scene_seen_by(&camera(), index, distance, off_axis, azimuth, roll)
+}
+
+/// [`plain_scene`] seen by another camera.
+pub fn plain_scene_seen_by(
+    camera: &CameraModel,
+    index: u64,
+    distance: f64,
+    off_axis: f64,
+    azimuth: f64,
+    roll: f64,
+) -> Scene {
+    let mut scene = sample_scene("fw_2x1white", 4242, index, camera).expect("scene");
     scene.pose = pose_looking(Vector3::z(), distance, off_axis.to_radians(), azimuth.to_radians(), roll.to_radians());
     scene.plates.truncate(1);
     scene.plates[0].cracks.clear();
