@@ -32,10 +32,13 @@
 
 use crate::Ros2Config;
 use crate::convert::{self, Rejection};
-use crate::msgs::{CameraInfo, DiagnosticArray, Image, PointCloud2, PoseArray, PoseStamped, RosMessage};
+use crate::msgs::{
+    CameraInfo, Detection3DArray, DiagnosticArray, Image, PointCloud2, PoseArray, PoseStamped, RosMessage, TFMessage,
+};
+use crate::perception;
 use futures::StreamExt;
 use futures::channel::oneshot;
-use outlet_protocol::wire::HolePosesMsg;
+use outlet_protocol::wire::{HolePosesMsg, MAX_HOLES};
 use ros2_client::dds::rustdds::{DomainParticipant, DomainParticipantBuilder};
 use ros2_client::dds::{Context, Node, Publisher, Subscription};
 use ros2_client::qos::{History, WhenFull};
@@ -69,6 +72,12 @@ pub const SENSOR_QOS: QosProfile = QosProfile::subscription_default().history(Hi
 pub const RESULT_QOS: QosProfile = QosProfile::publisher_default()
     .reliability_reliable(WhenFull::Wait(Duration::from_millis(20)))
     .history(History::KeepLast { depth: 10 });
+
+/// `/tf`: reliable, volatile, the last 100, as tf2_ros' TransformBroadcaster
+/// (`DynamicBroadcasterQoS`) publishes it.
+pub const TF_QOS: QosProfile = QosProfile::publisher_default()
+    .reliability_reliable(WhenFull::Wait(Duration::from_millis(20)))
+    .history(History::KeepLast { depth: 100 });
 
 /// Keeps only the errors of rustdds' and ros2-client's logs (they log through
 /// the `log` crate) unless RUST_LOG is set. On loopback only, rustdds 0.15
@@ -256,9 +265,13 @@ impl Inputs {
 pub struct Bridge {
     holes: Publisher<PoseArray>,
     pose: Publisher<PoseStamped>,
+    detections: Publisher<Detection3DArray>,
+    tf: Publisher<TFMessage>,
     diagnostics: Publisher<DiagnosticArray>,
     inputs: Option<Inputs>,
     frame_id: String,
+    outlet_frame: String,
+    hole_frames: bool,
     // Dropped after the publishers and subscriptions: the node, then the participant.
     _node: Node,
     _context: Context,
@@ -279,9 +292,13 @@ impl Bridge {
         Ok(Self {
             holes: publisher(&mut node, &topics.holes, &RESULT_QOS)?,
             pose: publisher(&mut node, &topics.pose, &RESULT_QOS)?,
+            detections: publisher(&mut node, &topics.detections, &RESULT_QOS)?,
+            tf: publisher(&mut node, &topics.tf, &TF_QOS)?,
             diagnostics: publisher(&mut node, &topics.diagnostics, &RESULT_QOS)?,
             inputs: Some(inputs),
             frame_id: config.frame_id.clone(),
+            outlet_frame: config.outlet_frame.clone(),
+            hole_frames: config.hole_frames,
             _node: node,
             _context: context,
         })
@@ -292,12 +309,20 @@ impl Bridge {
         self.inputs.take()
     }
 
-    /// Publishes one frame's hole poses: a PoseArray on the holes topic and a
-    /// PoseStamped on the pose topic.
-    pub fn publish_poses(&self, msg: &HolePosesMsg) -> Result<(), BridgeError> {
+    /// Publishes one frame's hole poses: a PoseArray on the holes topic, a
+    /// PoseStamped on the pose topic, the outlet's (and the holes') transforms
+    /// on tf, and the holes as a Detection3DArray with `scores` (the detector's
+    /// of each hole, from the same frame's detection; 0 where None). Nothing
+    /// for a result without a pose ([`convert::Rejection::NoPose`]).
+    pub fn publish_poses(&self, msg: &HolePosesMsg, scores: Option<&[f64; MAX_HOLES]>) -> Result<(), BridgeError> {
         let (array, stamped) = convert::poses_of(msg, &self.frame_id)?;
+        let tf = perception::tf_of(&array, &stamped, &self.outlet_frame, self.hole_frames);
+        // Made before anything is sent; a covariance that is not one holds back only the detections.
+        let detections = perception::detections_of(&array, msg, scores);
         self.holes.publish(array).map_err(|e| dds("publishing the hole poses", e))?;
-        self.pose.publish(stamped).map_err(|e| dds("publishing the outlet pose", e))
+        self.pose.publish(stamped).map_err(|e| dds("publishing the outlet pose", e))?;
+        self.tf.publish(tf).map_err(|e| dds("publishing tf", e))?;
+        self.detections.publish(detections?).map_err(|e| dds("publishing the detections", e))
     }
 
     pub fn publish_diagnostics(&self, array: DiagnosticArray) -> Result<(), BridgeError> {

@@ -7,6 +7,8 @@
 //!   rosbag2 stores them in MCAP files (`outlet record`, `outlet replay`).
 //! - [`convert`]: ROS 2 messages to and from the sidecar's wire types, pure
 //!   functions that check everything that comes from the network.
+//! - [`perception`]: a result as tf transforms and a `vision_msgs`
+//!   Detection3DArray with the holes' covariances.
 //! - [`bridge`]: the DDS participant (ros2-client on rustdds) on the configured
 //!   network interfaces only, its subscriptions and publishers.
 //!
@@ -17,6 +19,7 @@ pub mod bridge;
 pub mod cdr;
 pub mod convert;
 pub mod msgs;
+pub mod perception;
 
 pub use bridge::{Bridge, BridgeError, Input, Inputs, Stop};
 pub use convert::Rejection;
@@ -34,8 +37,13 @@ pub struct Ros2Config {
     /// Network interfaces (names such as `lo`, or IPv4 addresses) DDS may use;
     /// `["lo"]` confines it to loopback; empty: every interface (rustdds' default).
     pub interfaces: Vec<String>,
-    /// The frame_id of the published headers: the camera's optical frame.
+    /// The frame_id of the published headers: the camera's optical frame, the
+    /// parent of the tf frames.
     pub frame_id: String,
+    /// The tf child frame of the outlet (parent `frame_id`).
+    pub outlet_frame: String,
+    /// Whether each hole gets a tf frame as well: `<outlet_frame>/hole_<k>`.
+    pub hole_frames: bool,
     pub topics: Ros2Topics,
 }
 
@@ -53,6 +61,10 @@ pub struct Ros2Topics {
     pub holes: String,
     /// Out: geometry_msgs/PoseStamped of the outlet, reliable.
     pub pose: String,
+    /// Out: vision_msgs/Detection3DArray, one detection per hole with its covariance, reliable.
+    pub detections: String,
+    /// Out: tf2_msgs/TFMessage, the outlet's (and the holes') frames, reliable.
+    pub tf: String,
     /// Out: diagnostic_msgs/DiagnosticArray of the services' heartbeats, reliable.
     pub diagnostics: String,
 }
@@ -63,6 +75,8 @@ impl Default for Ros2Config {
             domain_id: 0,
             interfaces: Vec::new(),
             frame_id: "camera_optical_frame".into(),
+            outlet_frame: "outlet".into(),
+            hole_frames: true,
             topics: Ros2Topics::default(),
         }
     }
@@ -76,6 +90,8 @@ impl Default for Ros2Topics {
             points: "/camera/points".into(),
             holes: "/outlet/holes".into(),
             pose: "/outlet/pose".into(),
+            detections: "/outlet/detections".into(),
+            tf: "/tf".into(),
             diagnostics: "/diagnostics".into(),
         }
     }
@@ -86,13 +102,15 @@ pub const MAX_DOMAIN_ID: u16 = 232;
 
 impl Ros2Topics {
     /// Each topic with its key in the file.
-    pub fn named(&self) -> [(&'static str, &str); 6] {
+    pub fn named(&self) -> [(&'static str, &str); 8] {
         [
             ("image", &self.image),
             ("camera_info", &self.camera_info),
             ("points", &self.points),
             ("holes", &self.holes),
             ("pose", &self.pose),
+            ("detections", &self.detections),
+            ("tf", &self.tf),
             ("diagnostics", &self.diagnostics),
         ]
     }
@@ -107,8 +125,14 @@ impl Ros2Config {
         if let Some(bad) = self.interfaces.iter().find(|i| i.trim().is_empty() || i.trim() != i.as_str()) {
             return Err(format!("key `ros2.interfaces`: {bad:?} is not an interface name"));
         }
-        if self.frame_id.is_empty() {
-            return Err("key `ros2.frame_id`: empty".into());
+        // tf2 refuses frame ids with a leading slash.
+        for (key, frame) in [("frame_id", &self.frame_id), ("outlet_frame", &self.outlet_frame)] {
+            if frame.is_empty() || frame.starts_with('/') || frame.trim() != frame.as_str() {
+                return Err(format!("key `ros2.{key}`: {frame:?} is not a tf frame id (empty, spaces or a leading /)"));
+            }
+        }
+        if self.outlet_frame == self.frame_id {
+            return Err(format!("key `ros2.outlet_frame`: {:?} is the camera's frame_id too", self.outlet_frame));
         }
         for (key, topic) in self.topics.named() {
             bridge::topic_name(topic).map_err(|e| format!("key `ros2.topics.{key}`: {e}"))?;
@@ -128,6 +152,9 @@ mod tests {
         assert!(c.interfaces.is_empty());
         assert_eq!(c.topics.image, "/camera/image_raw");
         assert_eq!(c.topics.holes, "/outlet/holes");
+        assert_eq!(c.topics.tf, "/tf");
+        assert_eq!(c.topics.detections, "/outlet/detections");
+        assert_eq!((c.outlet_frame.as_str(), c.hole_frames), ("outlet", true));
         assert_eq!(c.check(), Ok(()));
     }
 
@@ -145,5 +172,12 @@ mod tests {
         assert!(c.check().expect_err("topic").contains("ros2.topics.image"));
         let c = Ros2Config { frame_id: String::new(), ..Ros2Config::default() };
         assert!(c.check().expect_err("frame").contains("ros2.frame_id"));
+        let c = Ros2Config { outlet_frame: "/outlet".into(), ..Ros2Config::default() };
+        assert!(c.check().expect_err("frame").contains("ros2.outlet_frame"));
+        let c = Ros2Config { outlet_frame: "camera_optical_frame".into(), ..Ros2Config::default() };
+        assert!(c.check().expect_err("frame").contains("ros2.outlet_frame"));
+        let mut c = Ros2Config::default();
+        c.topics.tf = "tf topic".into();
+        assert!(c.check().expect_err("topic").contains("ros2.topics.tf"));
     }
 }

@@ -107,6 +107,135 @@ pub struct PoseStamped {
 }
 ros_message!(PoseStamped, "geometry_msgs", "PoseStamped");
 
+/// `geometry_msgs/Vector3` (metres in this bridge).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Vector3 {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+}
+ros_message!(Vector3, "geometry_msgs", "Vector3");
+
+/// `geometry_msgs/Transform`: the child frame in the parent frame.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Transform {
+    pub translation: Vector3,
+    pub rotation: Quaternion,
+}
+ros_message!(Transform, "geometry_msgs", "Transform");
+
+/// `geometry_msgs/TransformStamped`: `header.frame_id` is the parent frame.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TransformStamped {
+    pub header: Header,
+    pub child_frame_id: String,
+    pub transform: Transform,
+}
+ros_message!(TransformStamped, "geometry_msgs", "TransformStamped");
+
+/// `tf2_msgs/TFMessage`, what `/tf` carries.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TFMessage {
+    pub transforms: Vec<TransformStamped>,
+}
+ros_message!(TFMessage, "tf2_msgs", "TFMessage");
+
+/// `geometry_msgs/PoseWithCovariance`: the covariance is 6x6 row-major over
+/// (x, y, z, rotation about X, about Y, about Z).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PoseWithCovariance {
+    pub pose: Pose,
+    #[serde(with = "array36")]
+    pub covariance: [f64; 36],
+}
+ros_message!(PoseWithCovariance, "geometry_msgs", "PoseWithCovariance");
+
+impl Default for PoseWithCovariance {
+    fn default() -> Self {
+        Self { pose: Pose::default(), covariance: [0.0; 36] }
+    }
+}
+
+/// `float64[36]` in CDR: 36 doubles, no count (serde's own arrays stop at 32).
+mod array36 {
+    use serde::de::{Error, SeqAccess, Visitor};
+    use serde::ser::SerializeTuple;
+    use serde::{Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(values: &[f64; 36], s: S) -> Result<S::Ok, S::Error> {
+        let mut t = s.serialize_tuple(36)?;
+        for v in values {
+            t.serialize_element(v)?;
+        }
+        t.end()
+    }
+
+    struct Array36;
+
+    impl<'de> Visitor<'de> for Array36 {
+        type Value = [f64; 36];
+
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("36 float64 values")
+        }
+
+        fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<[f64; 36], A::Error> {
+            let mut out = [0.0; 36];
+            for (k, v) in out.iter_mut().enumerate() {
+                *v = seq.next_element()?.ok_or_else(|| A::Error::invalid_length(k, &self))?;
+            }
+            Ok(out)
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 36], D::Error> {
+        d.deserialize_tuple(36, Array36)
+    }
+}
+
+/// `vision_msgs/ObjectHypothesis` (vision_msgs 4, Humble and newer).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ObjectHypothesis {
+    pub class_id: String,
+    pub score: f64,
+}
+ros_message!(ObjectHypothesis, "vision_msgs", "ObjectHypothesis");
+
+/// `vision_msgs/ObjectHypothesisWithPose`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ObjectHypothesisWithPose {
+    pub hypothesis: ObjectHypothesis,
+    pub pose: PoseWithCovariance,
+}
+ros_message!(ObjectHypothesisWithPose, "vision_msgs", "ObjectHypothesisWithPose");
+
+/// `vision_msgs/BoundingBox3D`: a box about `center`, `size` its edges (m).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct BoundingBox3D {
+    pub center: Pose,
+    pub size: Vector3,
+}
+ros_message!(BoundingBox3D, "vision_msgs", "BoundingBox3D");
+
+/// `vision_msgs/Detection3D` as of vision_msgs 4 (Humble): header, results,
+/// bbox, id (vision_msgs 3, Foxy, had `source_cloud` and tracking fields instead of `id`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Detection3D {
+    pub header: Header,
+    pub results: Vec<ObjectHypothesisWithPose>,
+    pub bbox: BoundingBox3D,
+    pub id: String,
+}
+ros_message!(Detection3D, "vision_msgs", "Detection3D");
+
+/// `vision_msgs/Detection3DArray`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Detection3DArray {
+    pub header: Header,
+    pub detections: Vec<Detection3D>,
+}
+ros_message!(Detection3DArray, "vision_msgs", "Detection3DArray");
+
 /// `sensor_msgs/Image`: `height` rows of `step` bytes.
 #[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct Image {
@@ -261,6 +390,8 @@ mod tests {
         assert_eq!(PoseArray::DDS_TYPE, "geometry_msgs::msg::dds_::PoseArray_");
         assert_eq!(Image::DDS_TYPE, "sensor_msgs::msg::dds_::Image_");
         assert_eq!(DiagnosticArray::DDS_TYPE, "diagnostic_msgs::msg::dds_::DiagnosticArray_");
+        assert_eq!(TFMessage::DDS_TYPE, "tf2_msgs::msg::dds_::TFMessage_");
+        assert_eq!(Detection3DArray::DDS_TYPE, "vision_msgs::msg::dds_::Detection3DArray_");
         for (made, constant) in [
             dds_type::<Time>(),
             dds_type::<Header>(),
@@ -277,6 +408,16 @@ mod tests {
             dds_type::<KeyValue>(),
             dds_type::<DiagnosticStatus>(),
             dds_type::<DiagnosticArray>(),
+            dds_type::<Vector3>(),
+            dds_type::<Transform>(),
+            dds_type::<TransformStamped>(),
+            dds_type::<TFMessage>(),
+            dds_type::<PoseWithCovariance>(),
+            dds_type::<ObjectHypothesis>(),
+            dds_type::<ObjectHypothesisWithPose>(),
+            dds_type::<BoundingBox3D>(),
+            dds_type::<Detection3D>(),
+            dds_type::<Detection3DArray>(),
         ] {
             assert_eq!(made, constant);
         }
@@ -335,6 +476,62 @@ mod tests {
             is_dense: true,
         };
         assert_eq!(cdr_encoding::from_bytes::<PointCloud2, LittleEndian>(&cdr(&cloud)).expect("decodes").0, cloud);
+    }
+
+    #[test]
+    fn a_detection_is_laid_out_as_vision_msgs_4_lays_it_out() {
+        let mut covariance = [0.0; 36];
+        covariance[0] = 1.5;
+        covariance[35] = 2.5;
+        let pose = Pose { position: Point { x: 1.0, y: 2.0, z: 3.0 }, orientation: Quaternion::default() };
+        let d = Detection3DArray {
+            header: Header { stamp: Time { sec: 1, nanosec: 2 }, frame_id: "c".into() },
+            detections: vec![Detection3D {
+                header: Header { stamp: Time { sec: 1, nanosec: 2 }, frame_id: "c".into() },
+                results: vec![ObjectHypothesisWithPose {
+                    hypothesis: ObjectHypothesis { class_id: "power".into(), score: 0.75 },
+                    pose: PoseWithCovariance { pose, covariance },
+                }],
+                bbox: BoundingBox3D { center: pose, size: Vector3::default() },
+                id: "hole_0".into(),
+            }],
+        };
+        let bytes = cdr(&d);
+        let f64_at = |at: usize| f64::from_le_bytes(bytes[at..at + 8].try_into().expect("8 bytes"));
+        // Array header (8 + 4 + 2 = 14) | count at 16 | detection header 20..34 | results count at 36 |
+        // class_id at 40 (4 + 6 = 10) | pad to 56 | score at 56 | pose 64..120 | covariance 120..408 |
+        // bbox center 408..464, size 464..488 | id at 488 (4 + 7).
+        assert_eq!(u32::from_le_bytes(bytes[16..20].try_into().expect("4")), 1);
+        assert_eq!(&bytes[44..50], b"power\0");
+        assert_eq!(f64_at(56), 0.75);
+        assert_eq!([f64_at(64), f64_at(72), f64_at(80), f64_at(112)], [1.0, 2.0, 3.0, 1.0]);
+        assert_eq!([f64_at(120), f64_at(120 + 35 * 8)], [1.5, 2.5]);
+        assert_eq!(f64_at(408), 1.0);
+        assert_eq!(&bytes[492..499], b"hole_0\0");
+        assert_eq!(bytes.len(), 499);
+        let (back, _) = cdr_encoding::from_bytes::<Detection3DArray, LittleEndian>(&bytes).expect("decodes");
+        assert_eq!(back, d);
+        for cut in 0..bytes.len() {
+            assert!(cdr_encoding::from_bytes::<Detection3DArray, LittleEndian>(&bytes[..cut]).is_err(), "cut {cut}");
+        }
+    }
+
+    #[test]
+    fn tf_messages_round_trip_through_cdr() {
+        let tf = TFMessage {
+            transforms: vec![TransformStamped {
+                header: Header { stamp: Time { sec: 3, nanosec: 4 }, frame_id: "cam".into() },
+                child_frame_id: "outlet".into(),
+                transform: Transform {
+                    translation: Vector3 { x: 0.1, y: 0.2, z: 0.5 },
+                    rotation: Quaternion::default(),
+                },
+            }],
+        };
+        let bytes = cdr(&tf);
+        // count 4 | stamp 8 | "cam" 4 + 4 | "outlet" 4 + 7 | pad to 32 | 7 doubles.
+        assert_eq!(bytes.len(), 32 + 56);
+        assert_eq!(cdr_encoding::from_bytes::<TFMessage, LittleEndian>(&bytes).expect("decodes").0, tf);
     }
 
     #[test]

@@ -10,7 +10,8 @@
 use outlet_protocol::wire::{HeartbeatMsg, HolePosesMsg, MAX_HOLES, SCHEMA_VERSION};
 use outlet_ros2_bridge::bridge::{self, Stop};
 use outlet_ros2_bridge::msgs::{
-    CameraInfo, DiagnosticArray, Header, Image, PointCloud2, PointField, PoseArray, PoseStamped, Time,
+    CameraInfo, Detection3DArray, DiagnosticArray, Header, Image, PointCloud2, PointField, PoseArray, PoseStamped,
+    TFMessage, Time,
 };
 use outlet_ros2_bridge::ros2_client::QosProfile;
 use outlet_ros2_bridge::{Bridge, Input, Ros2Config};
@@ -64,6 +65,9 @@ fn messages_cross_dds_on_loopback_both_ways() {
     let pose_sub = bridge::subscription::<PoseStamped>(&mut peer, &topics.pose, &bridge::RESULT_QOS).expect("pose");
     let diag_sub =
         bridge::subscription::<DiagnosticArray>(&mut peer, &topics.diagnostics, &bridge::RESULT_QOS).expect("diag");
+    let tf_sub = bridge::subscription::<TFMessage>(&mut peer, &topics.tf, &bridge::TF_QOS).expect("tf");
+    let det_sub =
+        bridge::subscription::<Detection3DArray>(&mut peer, &topics.detections, &bridge::RESULT_QOS).expect("det");
 
     let image = Image {
         header: stamp(),
@@ -101,7 +105,7 @@ fn messages_cross_dds_on_loopback_both_ways() {
     let mut positions_m = [[0.0; 3]; MAX_HOLES];
     positions_m[0] = [0.01, 0.02, 0.5];
     positions_m[1] = [0.03, 0.02, 0.5];
-    let poses = HolePosesMsg {
+    let mut poses = HolePosesMsg {
         schema_version: SCHEMA_VERSION,
         hole_count: 2,
         frame_id: 9,
@@ -117,24 +121,31 @@ fn messages_cross_dds_on_loopback_both_ways() {
         positions_m,
         covariances_m2: [[0.0; 9]; MAX_HOLES],
     };
+    poses.kinds[..2].copy_from_slice(&[1, 2]);
+    poses.covariances_m2[1] = [4e-8, 1e-9, 0.0, 1e-9, 4e-8, 0.0, 0.0, 0.0, 9e-8];
+    let mut scores = [0.0; MAX_HOLES];
+    scores[..2].copy_from_slice(&[0.9, 0.8]);
     let mut beat = HeartbeatMsg::new("detector", 1, 0);
     beat.published_ns = 1_700_000_000_000_000_000;
     beat.output_rate_hz = 10.0;
 
     let (mut got_image, mut got_info, mut got_cloud) = (None, None, None);
     let (mut got_holes, mut got_pose, mut got_diag) = (None, None, None);
+    let (mut got_tf, mut got_det) = (None, None);
     let started = Instant::now();
     while [got_image.is_none(), got_info.is_none(), got_cloud.is_none()].iter().any(|&b| b)
         || got_holes.is_none()
         || got_pose.is_none()
         || got_diag.is_none()
+        || got_tf.is_none()
+        || got_det.is_none()
     {
         assert!(started.elapsed() < Duration::from_secs(30), "nothing crossed in 30 s");
         // Discovery takes a moment; until both sides are matched, send again.
         let _ = image_pub.publish(image.clone());
         let _ = info_pub.publish(info.clone());
         let _ = cloud_pub.publish(cloud.clone());
-        bridge.publish_poses(&poses).expect("poses");
+        bridge.publish_poses(&poses, Some(&scores)).expect("poses");
         let array = outlet_ros2_bridge::convert::diagnostics_of(&[beat], beat.published_ns, 3_000_000_000, "test");
         bridge.publish_diagnostics(array).expect("diagnostics");
         let wait = Instant::now();
@@ -149,6 +160,8 @@ fn messages_cross_dds_on_loopback_both_ways() {
             got_holes = got_holes.or(holes_sub.take().ok().flatten().map(|(m, _)| m));
             got_pose = got_pose.or(pose_sub.take().ok().flatten().map(|(m, _)| m));
             got_diag = got_diag.or(diag_sub.take().ok().flatten().map(|(m, _)| m));
+            got_tf = got_tf.or(tf_sub.take().ok().flatten().map(|(m, _)| m));
+            got_det = got_det.or(det_sub.take().ok().flatten().map(|(m, _)| m));
         }
     }
     assert_eq!(got_image.as_ref(), Some(&image), "a 900 kB image crosses whole");
@@ -163,6 +176,21 @@ fn messages_cross_dds_on_loopback_both_ways() {
     assert_eq!(got_pose.expect("pose").pose.position.x, 0.02);
     let diag = got_diag.expect("diagnostics");
     assert_eq!(diag.status[0].name, "outlet/detector");
+    let tf = got_tf.expect("tf");
+    let children: Vec<&str> = tf.transforms.iter().map(|t| t.child_frame_id.as_str()).collect();
+    assert_eq!(children, ["outlet", "outlet/hole_0", "outlet/hole_1"]);
+    assert_eq!(tf.transforms[0].header, holes.header);
+    assert_eq!(tf.transforms[2].transform.translation.x, 0.03);
+    let det = got_det.expect("detections");
+    assert_eq!(det.header, holes.header);
+    let classes: Vec<(&str, f64)> = det
+        .detections
+        .iter()
+        .map(|d| (d.results[0].hypothesis.class_id.as_str(), d.results[0].hypothesis.score))
+        .collect();
+    assert_eq!(classes, [("power", 0.9), ("ground", 0.8)]);
+    let c = &det.detections[1].results[0].pose.covariance;
+    assert_eq!([c[0], c[1], c[7], c[14], c[21]], [4e-8, 1e-9, 4e-8, 9e-8, 1e6]);
 
     stop_handle.stop();
     runner.join().expect("the inputs thread ends on stop");

@@ -8,8 +8,11 @@
 //!   on the subscriptions' async streams and has its own iceoryx2 node
 //!   (iceoryx2 ports stay on the thread that made them).
 //! - Out (shared memory to DDS), on the service's WaitSet: each
-//!   [`service::HOLE_POSES`] message becomes a `geometry_msgs/PoseArray` and a
-//!   `geometry_msgs/PoseStamped`; at each heartbeat tick the services'
+//!   [`service::HOLE_POSES`] message becomes a `geometry_msgs/PoseArray`, a
+//!   `geometry_msgs/PoseStamped`, a `tf2_msgs/TFMessage` and a
+//!   `vision_msgs/Detection3DArray`, whose scores come from the same frame's
+//!   [`service::DETECTIONS`] message (read, with no notification, before each
+//!   pose); at each heartbeat tick the services'
 //!   heartbeats ([`service::HEARTBEAT`], which carry no notification) become one
 //!   `diagnostic_msgs/DiagnosticArray`.
 //!
@@ -28,8 +31,9 @@ use iceoryx2::prelude::*;
 use outlet::health::{Health, now_ns};
 use outlet_protocol::CameraModel;
 use outlet_protocol::shm;
-use outlet_protocol::wire::{CloudHeader, FrameHeader, HolePosesMsg, SCHEMA_VERSION, service};
+use outlet_protocol::wire::{CloudHeader, DetectionMsg, FrameHeader, HolePosesMsg, SCHEMA_VERSION, service};
 use outlet_ros2_bridge::convert::{self, Diagnostics};
+use outlet_ros2_bridge::perception::HoleScores;
 use outlet_ros2_bridge::{Bridge, BridgeError, Input, Inputs, Stop};
 use std::sync::{Arc, Mutex, MutexGuard, mpsc};
 use std::time::Instant;
@@ -105,6 +109,11 @@ pub fn run(rt: &Runtime) -> Result<()> {
         .create()
         .map_err(|e| anyhow::anyhow!("hole pose subscriber: {e:?}"))?;
     let pose_listener = rt.listener(service::HOLE_POSES)?;
+    let detection_sub = shm::messages::<DetectionMsg>(&rt.node, service::DETECTIONS)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| anyhow::anyhow!("detection subscriber: {e:?}"))?;
+    let mut scores = HoleScores::default();
     let beat_sub = shm::heartbeats(&rt.node)?
         .subscriber_builder()
         .create()
@@ -118,7 +127,7 @@ pub fn run(rt: &Runtime) -> Result<()> {
     let mut input_thread_ended = false;
     let topics = &config.topics;
     tracing::info!(
-        "ros2-bridge ready: {} + {} -> {}, {} -> {}; {} -> {} + {}; heartbeats -> {}",
+        "ros2-bridge ready: {} + {} -> {}, {} -> {}; {} -> {} + {} + {} + {}; heartbeats -> {}",
         topics.image,
         topics.camera_info,
         service::FRAMES,
@@ -127,6 +136,8 @@ pub fn run(rt: &Runtime) -> Result<()> {
         service::HOLE_POSES,
         topics.holes,
         topics.pose,
+        topics.detections,
+        topics.tf,
         topics.diagnostics
     );
     let on_event = |id: WaitSetAttachmentId<ipc::Service>| {
@@ -154,6 +165,17 @@ pub fn run(rt: &Runtime) -> Result<()> {
         }
         if id.has_event_from(&poses) {
             clear(&pose_listener);
+            // The detections of the poses about to be read came before them.
+            loop {
+                match detection_sub.receive() {
+                    Ok(Some(d)) => scores.insert(d.payload()),
+                    Ok(None) => break,
+                    Err(e) => {
+                        tracing::warn!("receiving detections: {e:?}");
+                        break;
+                    }
+                }
+            }
             loop {
                 let sample = match pose_sub.receive() {
                     Ok(Some(s)) => s,
@@ -165,7 +187,12 @@ pub fn run(rt: &Runtime) -> Result<()> {
                 };
                 let started = Instant::now();
                 lock(&health).input();
-                match bridge.publish_poses(sample.payload()) {
+                let msg = sample.payload();
+                let hole_scores = scores.of(msg);
+                if hole_scores.is_none() && msg.hole_count > 0 {
+                    tracing::debug!("frame {}: its detection was not seen; the detections' scores are 0", msg.frame_id);
+                }
+                match bridge.publish_poses(msg, hole_scores) {
                     // No latency sample: the heartbeat's latency is the inbound one.
                     Ok(()) => lock(&health).output(0, started.elapsed().as_secs_f64() * 1e3),
                     Err(BridgeError::Rejected(r)) => reject(&health, &r.to_string()),
