@@ -141,3 +141,53 @@ impl Tracker {
         Some([left as u32, top as u32, w as u32, h as u32])
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tracking(holes: &[(f64, f64)], time_s: f64) -> Tracker {
+        let mut t = Tracker::new(TrackParams::default());
+        t.last = Some((holes.iter().map(|&(x, y)| Point2::new(x, y)).collect(), time_s));
+        t
+    }
+
+    const HOLES: [(f64, f64); 3] = [(300.0, 200.0), (340.0, 200.0), (320.0, 260.0)];
+
+    #[test]
+    fn the_window_holds_the_last_holes_with_a_margin_growing_with_time() {
+        let w = tracking(&HOLES, 0.0).window(640, 480, 1.0 / 30.0).expect("a window");
+        let [x, y, width, height] = w.map(f64::from);
+        for (u, v) in HOLES {
+            assert!(u - x >= 18.0 && x + width - u >= 18.0 && v - y >= 18.0 && y + height - v >= 18.0, "{w:?}");
+        }
+        let later = tracking(&HOLES, 0.0).window(640, 480, 0.2).expect("a window");
+        assert!(later[2] > w[2] && later[3] > w[3], "{later:?} against {w:?}");
+    }
+
+    #[test]
+    fn a_window_is_clipped_to_the_image() {
+        let edge = [(620.0, 20.0), (639.0, 20.0), (630.0, 60.0)];
+        let [x, y, width, height] = tracking(&edge, 0.0).window(640, 480, 0.01).expect("a window");
+        assert!(x + width <= 640 && y + height <= 480 && width > 0 && height > 0);
+    }
+
+    #[test]
+    fn old_or_backward_or_broken_times_and_every_nth_frame_search_the_whole_frame() {
+        for time in [0.6, -0.1, f64::NAN, f64::INFINITY] {
+            let mut t = tracking(&HOLES, 0.0);
+            assert_eq!(t.window(640, 480, time), None, "at {time}");
+            assert!(t.last.is_none(), "the last outlet is forgotten at {time}");
+        }
+        let mut t = tracking(&HOLES, 0.0);
+        t.windows_since_full = TrackParams::default().full_frame_every - 1;
+        assert_eq!(t.window(640, 480, 0.01), None, "the whole frame is due");
+        let never = TrackParams { full_frame_every: 1, ..TrackParams::default() };
+        let mut t = Tracker { params: never, ..tracking(&HOLES, 0.0) };
+        assert_eq!(t.window(640, 480, 0.01), None, "tracking off");
+        // An outlet that fills most of the frame: nothing to save.
+        let large = [(10.0, 10.0), (630.0, 10.0), (320.0, 470.0)];
+        assert_eq!(tracking(&large, 0.0).window(640, 480, 0.01), None);
+        assert_eq!(Tracker::default().window(640, 480, 0.0), None, "no outlet yet");
+    }
+}

@@ -181,3 +181,20 @@ fn tracking_follows_an_outlet_growing_four_times_in_a_second() {
     assert!(found >= frames - 2, "found in {found} of {frames} frames");
     assert!(windows >= found - 4, "only {windows} of {found} found in a window");
 }
+
+#[test]
+fn a_window_off_the_image_finds_nothing_and_one_over_it_all_finds_what_the_frame_does() {
+    let detector = detector();
+    let scene = plain_scene(14, 0.33, 10.0, 20.0, 0.0);
+    let frame = render_frame(&scene, "x");
+    let grey = grey_of(&frame.frame.image);
+    for window in [[700, 0, 100, 100], [0, 500, 100, 100], [10, 10, 0, 50]] {
+        let report = detector.detect_window(&grey, Some(&scene.camera), window);
+        assert!(report.detection.is_none() && report.candidates.is_empty(), "{window:?}");
+        assert!(report.rejected.is_some_and(|why| why.contains("empty")), "{window:?}");
+    }
+    let whole = detector.detect_window(&grey, Some(&scene.camera), [0, 0, u32::MAX, u32::MAX]);
+    let frame_wide = detector.detect_grey(&grey, Some(&scene.camera));
+    let (Some(a), Some(b)) = (whole.detection, frame_wide.detection) else { panic!("the outlet is found") };
+    assert_eq!(a, b);
+}
