@@ -12,7 +12,18 @@ An independent DDS implementation (Cyclone DDS through its Python package
   `geometry_msgs/PoseStamped` on /outlet/pose, and checks the answer: the stamp
   of the image it came from, the frame_id, one pose per hole of the ground truth,
   each within 1 mm of the truth (template order), the orientation the outlet's
-  (within 1 degree of the truth), and a PoseStamped with the same stamp.
+  (within 1 degree of the truth), and a PoseStamped with the same stamp;
+- it subscribes to `tf2_msgs/TFMessage` on /tf and checks the frame's
+  transforms: parent the camera's frame_id, children `outlet` and
+  `outlet/hole_<k>`, the capture stamp, the outlet's within 1 mm and 1 degree of
+  the truth, each hole's within 1 mm;
+- it subscribes to `vision_msgs/Detection3DArray` on /outlet/detections and
+  checks one detection per hole: the truth's class (`power`/`ground`), a score
+  in 0..1, the PoseArray's pose, a 6x6 covariance whose position block is
+  symmetric positive definite with a standard deviation under 5 mm, and whose
+  rotation block is the "unknown" diagonal of 1e6. With `--dump FILE` it writes
+  each answered frame's scores and 3x3 covariances (JSON, by stamp) for the
+  Rust test to compare with what the bridge read from shared memory.
 
 The scenes exercise the message layouts: images go out as rgb8, mono8 and bgr8
 (the bgr8 one with padded rows, step > width x 3); clouds have point_step 16
@@ -171,6 +182,70 @@ class PoseStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PoseStamped_"):
 
 
 @dataclass
+class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+    x: t.float64
+    y: t.float64
+    z: t.float64
+
+
+@dataclass
+class Transform(IdlStruct, typename="geometry_msgs::msg::dds_::Transform_"):
+    translation: Vector3
+    rotation: Quaternion
+
+
+@dataclass
+class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformStamped_"):
+    header: Header
+    child_frame_id: str
+    transform: Transform
+
+
+@dataclass
+class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
+    transforms: t.sequence[TransformStamped]
+
+
+@dataclass
+class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    pose: Pose
+    covariance: t.array[t.float64, 36]  # row-major 6x6: x, y, z, rotation about X, Y, Z
+
+
+# vision_msgs 4 (Humble and newer).
+@dataclass
+class ObjectHypothesis(IdlStruct, typename="vision_msgs::msg::dds_::ObjectHypothesis_"):
+    class_id: str
+    score: t.float64
+
+
+@dataclass
+class ObjectHypothesisWithPose(IdlStruct, typename="vision_msgs::msg::dds_::ObjectHypothesisWithPose_"):
+    hypothesis: ObjectHypothesis
+    pose: PoseWithCovariance
+
+
+@dataclass
+class BoundingBox3D(IdlStruct, typename="vision_msgs::msg::dds_::BoundingBox3D_"):
+    center: Pose
+    size: Vector3
+
+
+@dataclass
+class Detection3D(IdlStruct, typename="vision_msgs::msg::dds_::Detection3D_"):
+    header: Header
+    results: t.sequence[ObjectHypothesisWithPose]
+    bbox: BoundingBox3D
+    id: str
+
+
+@dataclass
+class Detection3DArray(IdlStruct, typename="vision_msgs::msg::dds_::Detection3DArray_"):
+    header: Header
+    detections: t.sequence[Detection3D]
+
+
+@dataclass
 class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
     key: str
     value: str
@@ -210,8 +285,14 @@ RESULT_QOS = Qos(
     Policy.Durability.Volatile,
     CDR,
 )
+# What tf2_ros' TransformListener reads /tf with: reliable, volatile, keep last 100.
+TF_QOS = RESULT_QOS
 
 HOLE_TOLERANCE_M = 1e-3
+# The bridge's variance of a rotation it does not estimate (services/ros2-bridge/README.md).
+UNKNOWN_ROTATION_VARIANCE = 1e6
+# A hole's position standard deviation must be below this (m): a sane covariance, not a layout accident.
+MAX_HOLE_SIGMA_M = 5e-3
 ORIGIN_TOLERANCE_M = 1e-3
 ROTATION_TOLERANCE_DEG = 1.0
 PUBLISH_PERIOD_S = 0.2
@@ -529,6 +610,8 @@ class Endpoints:
     holes: DataReader
     pose: DataReader
     diagnostics: DataReader
+    tf: DataReader
+    detections: DataReader
 
 
 def open_endpoints(args) -> Endpoints:
@@ -542,6 +625,8 @@ def open_endpoints(args) -> Endpoints:
         DataReader(dp, topic(args.holes_topic, PoseArray), qos=RESULT_QOS),
         DataReader(dp, topic(args.pose_topic, PoseStamped), qos=RESULT_QOS),
         DataReader(dp, topic(args.diagnostics_topic, DiagnosticArray), qos=RESULT_QOS),
+        DataReader(dp, topic(args.tf_topic, TFMessage), qos=TF_QOS),
+        DataReader(dp, topic(args.detections_topic, Detection3DArray), qos=RESULT_QOS),
     )
 
 
@@ -553,6 +638,8 @@ def wait_for_discovery(ep: Endpoints, args, deadline: float) -> list[str]:
         ("reader of", args.points_topic, ep.points),
         ("writer of", args.holes_topic, ep.holes),
         ("writer of", args.pose_topic, ep.pose),
+        ("writer of", args.tf_topic, ep.tf),
+        ("writer of", args.detections_topic, ep.detections),
     ]
 
     def missing():
@@ -587,6 +674,10 @@ class Outcome:
     latency_ms: float = math.nan
     hole_error_mm: float = math.nan
     rotation_error_deg: float = math.nan
+    tf_error_mm: float = math.nan  # worst of the outlet's and the holes' tf translations against the truth
+    tf_rotation_error_deg: float = math.nan
+    max_sigma_mm: float = math.nan  # the largest hole position standard deviation the detections gave
+    dumped: dict | None = None  # what the detections carried, for --dump
 
 
 class Inbox:
@@ -597,6 +688,8 @@ class Inbox:
         self.holes: dict[tuple[int, int], tuple[PoseArray, float]] = {}
         self.pose: dict[tuple[int, int], tuple[PoseStamped, float]] = {}
         self.diagnostics: dict[str, DiagnosticStatus] = {}
+        self.tf: dict[tuple[int, int], TFMessage] = {}  # by the first transform's stamp
+        self.detections: dict[tuple[int, int], Detection3DArray] = {}
 
     def drain(self):
         now = time.monotonic()
@@ -610,6 +703,12 @@ class Inbox:
             if isinstance(m, DiagnosticArray):
                 for s in m.status:
                     self.diagnostics[s.name] = s
+        for m in self.ep.tf.take(N=256):
+            if isinstance(m, TFMessage) and m.transforms:
+                self.tf.setdefault(stamp_key(m.transforms[0].header.stamp), m)
+        for m in self.ep.detections.take(N=256):
+            if isinstance(m, Detection3DArray):
+                self.detections.setdefault(stamp_key(m.header.stamp), m)
 
 
 def check_answer(outcome: Outcome, holes: PoseArray, pose: PoseStamped | None, key, frame_id: str):
@@ -668,6 +767,108 @@ def check_answer(outcome: Outcome, holes: PoseArray, pose: PoseStamped | None, k
         )
 
 
+def check_tf(outcome: Outcome, tf: TFMessage | None, key, args):
+    """The frame's transforms: parent the camera frame, the outlet's and each hole's against the truth."""
+    scene, problems = outcome.scene, outcome.problems
+    if tf is None:
+        problems.append(f"no TFMessage on {dds_topic(args.tf_topic)} with header.stamp {show_stamp(key)}")
+        return
+    children = [ts.child_frame_id for ts in tf.transforms]
+    expected = [args.outlet_frame] + [f"{args.outlet_frame}/hole_{k}" for k in range(len(scene.holes_m))]
+    if children != expected:
+        problems.append(f"tf child frames {children}, expected {expected}")
+    for ts in tf.transforms:
+        if ts.header.frame_id != args.frame_id or stamp_key(ts.header.stamp) != key:
+            problems.append(
+                f"tf {ts.child_frame_id!r}: parent {ts.header.frame_id!r} at {show_stamp(stamp_key(ts.header.stamp))}, "
+                f"expected {args.frame_id!r} at {show_stamp(key)}"
+            )
+    truth_r = np.array(scene.truth["pose"]["rotation"], dtype=float)
+    truths = {args.outlet_frame: scene.truth["pose"]["translation_m"]}
+    truths |= {f"{args.outlet_frame}/hole_{k}": t_m for k, t_m in enumerate(scene.holes_m)}
+    errors, angles = [], []
+    for ts in tf.transforms:
+        t_m = truths.get(ts.child_frame_id)
+        if t_m is None:
+            continue
+        v = ts.transform.translation
+        e = math.dist((v.x, v.y, v.z), t_m)
+        a = rotation_error_deg(quaternion_matrix(ts.transform.rotation), truth_r)
+        errors.append(e)
+        angles.append(a)
+        if not (e <= HOLE_TOLERANCE_M and a <= ROTATION_TOLERANCE_DEG):
+            problems.append(
+                f"tf {ts.child_frame_id!r}: ({v.x:.5f}, {v.y:.5f}, {v.z:.5f}) m is {e * 1e3:.3f} mm and {a:.2f} deg "
+                f"from the truth ({t_m[0]:.5f}, {t_m[1]:.5f}, {t_m[2]:.5f}) m (tolerances 1 mm, 1 deg)"
+            )
+    outcome.tf_error_mm = max(errors) * 1e3 if errors else math.nan
+    outcome.tf_rotation_error_deg = max(angles) if angles else math.nan
+
+
+def check_detections(outcome: Outcome, det: Detection3DArray | None, holes: PoseArray, key, args):
+    """One detection per hole: the truth's class, a score, the PoseArray's pose and a sane covariance."""
+    scene, problems = outcome.scene, outcome.problems
+    topic = dds_topic(args.detections_topic)
+    if det is None:
+        problems.append(f"no Detection3DArray on {topic} with header.stamp {show_stamp(key)}")
+        return
+    if det.header.frame_id != args.frame_id:
+        problems.append(f"Detection3DArray header.frame_id {det.header.frame_id!r}, expected {args.frame_id!r}")
+    kinds = [h["kind"] for h in scene.truth["holes"]]
+    if len(det.detections) != len(kinds):
+        problems.append(f"Detection3DArray has {len(det.detections)} detections, the truth {len(kinds)} holes")
+    dumped = {"scores": [], "covariances_m2": [], "classes": []}
+    sigmas = []
+    for k, (d, kind) in enumerate(zip(det.detections, kinds)):
+        where = f"detection {k}"
+        if stamp_key(d.header.stamp) != key or d.header.frame_id != args.frame_id or d.id != f"hole_{k}":
+            problems.append(
+                f"{where}: header {d.header.frame_id!r} at {show_stamp(stamp_key(d.header.stamp))}, id {d.id!r}; "
+                f"expected {args.frame_id!r} at {show_stamp(key)}, id 'hole_{k}'"
+            )
+        if len(d.results) != 1:
+            problems.append(f"{where}: {len(d.results)} hypotheses, expected 1")
+            continue
+        h = d.results[0]
+        if h.hypothesis.class_id != kind:
+            problems.append(f"{where}: class_id {h.hypothesis.class_id!r}, the truth's hole is {kind!r}")
+        if not 0.0 <= h.hypothesis.score <= 1.0:
+            problems.append(f"{where}: score {h.hypothesis.score} is not in 0..1")
+        if k < len(holes.poses) and h.pose.pose != holes.poses[k]:
+            problems.append(f"{where}: pose {h.pose.pose} is not the PoseArray's {holes.poses[k]}")
+        if d.bbox.center != h.pose.pose:
+            problems.append(f"{where}: bbox.center {d.bbox.center} is not the hypothesis' pose")
+        c = np.array(h.pose.covariance, dtype=float).reshape(6, 6)
+        position = c[:3, :3]
+        expected_rest = np.zeros((6, 6))
+        expected_rest[3:, 3:] = np.eye(3) * UNKNOWN_ROTATION_VARIANCE
+        rest = c.copy()
+        rest[:3, :3] = 0.0
+        if not np.array_equal(rest, expected_rest):
+            problems.append(
+                f"{where}: covariance outside the position block is {rest.tolist()}, expected "
+                f"{UNKNOWN_ROTATION_VARIANCE:g} on the rotations' diagonal and 0 elsewhere"
+            )
+        eig = np.linalg.eigvalsh(position) if np.all(np.isfinite(position)) else np.array([math.nan])
+        if not (np.array_equal(position, position.T) and eig.min() > 0):
+            problems.append(
+                f"{where}: position covariance {position.tolist()} is not symmetric positive definite "
+                f"(eigenvalues {eig.tolist()})"
+            )
+        elif not math.sqrt(eig.max()) < MAX_HOLE_SIGMA_M:
+            problems.append(
+                f"{where}: position standard deviation {math.sqrt(eig.max()) * 1e3:.3f} mm "
+                f"({MAX_HOLE_SIGMA_M * 1e3:g} mm at most)"
+            )
+        else:
+            sigmas.append(math.sqrt(eig.max()))
+        dumped["scores"].append(h.hypothesis.score)
+        dumped["covariances_m2"].append(position.reshape(9).tolist())
+        dumped["classes"].append(h.hypothesis.class_id)
+    outcome.max_sigma_mm = max(sigmas) * 1e3 if sigmas else math.nan
+    outcome.dumped = {"stamp": list(key), "scene": scene.stem, **dumped}
+
+
 def run_scene(ep: Endpoints, inbox: Inbox, scene: Scene, args, published_all: dict) -> Outcome:
     outcome = Outcome(scene)
     deadline = time.monotonic() + args.timeout
@@ -714,11 +915,15 @@ def run_scene(ep: Endpoints, inbox: Inbox, scene: Scene, args, published_all: di
     outcome.latency_ms = (arrived - mine[answer]) * 1e3
     # The PoseStamped of the same frame: a little later at most.
     pose_deadline = max(deadline, time.monotonic() + 2.0)
-    while answer not in inbox.pose and time.monotonic() < pose_deadline:
+    while (
+        answer not in inbox.pose or answer not in inbox.tf or answer not in inbox.detections
+    ) and time.monotonic() < pose_deadline:
         time.sleep(0.005)
         inbox.drain()
     pose = inbox.pose.get(answer, (None, 0))[0]
     check_answer(outcome, holes, pose, answer, args.frame_id)
+    check_tf(outcome, inbox.tf.get(answer), answer, args)
+    check_detections(outcome, inbox.detections.get(answer), holes, answer, args)
     strangers = [k for k in inbox.pose if k not in published_all]
     if pose is None and strangers:
         outcome.problems.append(
@@ -770,6 +975,8 @@ def run_test(args) -> int:
             print(
                 f"{'PASS' if o.ok else 'FAIL'} {scene.stem}: {scene.encoding}{step}, cloud {layout}; "
                 f"{len(scene.holes_m)} holes, worst {o.hole_error_mm:.3f} mm, rotation {o.rotation_error_deg:.3f} deg; "
+                f"tf worst {o.tf_error_mm:.3f} mm, {o.tf_rotation_error_deg:.3f} deg; "
+                f"largest hole sigma {o.max_sigma_mm:.3f} mm; "
                 f"{o.published} published, answered in {o.latency_ms:.0f} ms",
                 flush=True,
             )
@@ -789,6 +996,8 @@ def run_test(args) -> int:
             for name, status in sorted(inbox.diagnostics.items()):
                 values = ", ".join(f"{kv.key}={kv.value}" for kv in status.values)
                 print(f"    {name}: level {status.level} {status.message!r}; {values}", flush=True)
+        if args.dump:
+            Path(args.dump).write_text(json.dumps([o.dumped for o in outcomes if o.dumped], indent=1))
         passed = sum(o.ok for o in outcomes)
         print(f"ros2_interop: {passed} of {len(outcomes)} scenes passed", flush=True)
         if missing:
@@ -826,6 +1035,8 @@ def play_bridge(args) -> int:
     holes_w = DataWriter(dp, Topic(dp, dds_topic(args.holes_topic), PoseArray), qos=RESULT_QOS)
     pose_w = DataWriter(dp, Topic(dp, dds_topic(args.pose_topic), PoseStamped), qos=RESULT_QOS)
     diag_w = DataWriter(dp, Topic(dp, dds_topic(args.diagnostics_topic), DiagnosticArray), qos=RESULT_QOS)
+    tf_w = DataWriter(dp, Topic(dp, dds_topic(args.tf_topic), TFMessage), qos=TF_QOS)
+    det_w = DataWriter(dp, Topic(dp, dds_topic(args.detections_topic), Detection3DArray), qos=RESULT_QOS)
     stop = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     clouds: dict[tuple[int, int], str] = {}  # stamp -> scene whose cloud came with it
@@ -885,6 +1096,23 @@ def play_bridge(args) -> int:
             poses = [Pose(Point(*h), q) for h in scene.holes_m]
             holes_w.write(PoseArray(header, poses))
             pose_w.write(PoseStamped(header, Pose(Point(*scene.truth["pose"]["translation_m"]), q)))
+            frames = [(args.outlet_frame, scene.truth["pose"]["translation_m"])]
+            frames += [(f"{args.outlet_frame}/hole_{k}", h) for k, h in enumerate(scene.holes_m)]
+            tf_w.write(TFMessage([TransformStamped(header, name, Transform(Vector3(*v), q)) for name, v in frames]))
+            covariance = [0.0] * 36
+            for i, v in enumerate([1e-8, 1e-8, 4e-8, UNKNOWN_ROTATION_VARIANCE, UNKNOWN_ROTATION_VARIANCE,
+                                   UNKNOWN_ROTATION_VARIANCE]):
+                covariance[7 * i] = v
+            detections = [
+                Detection3D(
+                    header,
+                    [ObjectHypothesisWithPose(ObjectHypothesis(h["kind"], 0.9), PoseWithCovariance(p, covariance))],
+                    BoundingBox3D(p, Vector3(0.0, 0.0, 0.0)),
+                    f"hole_{k}",
+                )
+                for k, (h, p) in enumerate(zip(scene.truth["holes"], poses))
+            ]
+            det_w.write(Detection3DArray(header, detections))
         if time.monotonic() > beat:
             beat = time.monotonic() + 0.5
             status = [DiagnosticStatus(0, f"outlet/{s}", "ok", "", [KeyValue("frames", "0")]) for s in
@@ -909,6 +1137,10 @@ def main() -> int:
     parser.add_argument("--holes-topic", default="/outlet/holes")
     parser.add_argument("--pose-topic", default="/outlet/pose")
     parser.add_argument("--diagnostics-topic", default="/diagnostics")
+    parser.add_argument("--tf-topic", default="/tf")
+    parser.add_argument("--detections-topic", default="/outlet/detections")
+    parser.add_argument("--outlet-frame", default="outlet", help="the bridge's [ros2] outlet_frame")
+    parser.add_argument("--dump", help="write each answer's detection scores and covariances here (JSON)")
     parser.add_argument(
         "--expect-diagnostics",
         type=lambda names: [n for n in names.split(",") if n],

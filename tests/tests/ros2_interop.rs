@@ -2,9 +2,13 @@
 //! DDS through its Python package `cyclonedds` (tests/ros2_interop.py) plays a
 //! ROS 2 camera driver publishing `sensor_msgs/Image`, `CameraInfo` and
 //! `PointCloud2` of rendered scenes, and a ROS 2 node reading
-//! `geometry_msgs/PoseArray` and `PoseStamped`; `outlet serve ros2-bridge` feeds
-//! the images to detector, normal and pose over iceoryx2 and publishes their
-//! hole poses, which must be within a millimetre of the ground truth.
+//! `geometry_msgs/PoseArray` and `PoseStamped`, `/tf` (`tf2_msgs/TFMessage`) and
+//! `vision_msgs/Detection3DArray`; `outlet serve ros2-bridge` feeds the images to
+//! detector, normal and pose over iceoryx2 and publishes their hole poses, which
+//! must be within a millimetre of the ground truth. This test also reads the
+//! pose and detection messages from shared memory, as the bridge does, and
+//! checks that each covariance, class and score the Python peer decoded from
+//! the Detection3DArray is the one the bridge was given.
 //!
 //! LOOPBACK ONLY: every DDS participant of this test is confined to the loopback
 //! interface. The bridge is configured with `[ros2] interfaces = ["lo"]` (a
@@ -19,7 +23,12 @@
 //! `scripts/test.sh` (the README's test command) creates. Without it this test
 //! fails, it does not skip.
 
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use outlet_protocol::shm;
+use outlet_protocol::wire::{DetectionMsg, HolePosesMsg, service};
 use outlet_tests::{Sidecar, domain, outlet_exe, wait_for};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -128,6 +137,75 @@ fn detectable_scenes(dir: &Path) -> Result<PathBuf, Box<dyn std::error::Error>> 
     Ok(scenes)
 }
 
+/// What the bridge read from shared memory, by capture time (ns).
+#[derive(Default)]
+struct BridgeInputs {
+    poses: HashMap<u64, HolePosesMsg>,
+    detections: HashMap<u64, DetectionMsg>,
+}
+
+impl BridgeInputs {
+    fn drain(
+        &mut self,
+        poses: &Subscriber<ipc::Service, HolePosesMsg, ()>,
+        detections: &Subscriber<ipc::Service, DetectionMsg, ()>,
+    ) {
+        while let Ok(Some(p)) = poses.receive() {
+            self.poses.insert(p.payload().capture_time_ns, *p.payload());
+        }
+        while let Ok(Some(d)) = detections.receive() {
+            self.detections.insert(d.payload().capture_time_ns, *d.payload());
+        }
+    }
+}
+
+/// Each frame the Python peer dumped (`--dump`): its classes, scores and 3x3
+/// position covariances, as decoded from the Detection3DArray, against the
+/// pose and detection messages of the same capture time. How many holes were compared.
+fn detections_match_the_bridges_inputs(dump: &serde_json::Value, inputs: &BridgeInputs) -> Result<usize, String> {
+    let frames = dump.as_array().ok_or("the dump is not a list")?;
+    let mut holes = 0;
+    for frame in frames {
+        let stamp = &frame["stamp"];
+        let (sec, nanosec) = (stamp[0].as_u64().ok_or("stamp")?, stamp[1].as_u64().ok_or("stamp")?);
+        let capture_time_ns = sec * 1_000_000_000 + nanosec;
+        let poses = inputs.poses.get(&capture_time_ns).ok_or(format!("no hole poses of capture {capture_time_ns}"))?;
+        let detection =
+            inputs.detections.get(&capture_time_ns).ok_or(format!("no detection of capture {capture_time_ns}"))?;
+        let covariances = frame["covariances_m2"].as_array().ok_or("covariances")?;
+        let scores = frame["scores"].as_array().ok_or("scores")?;
+        let classes = frame["classes"].as_array().ok_or("classes")?;
+        if covariances.len() != poses.hole_count as usize {
+            return Err(format!("{} covariances, {} holes", covariances.len(), poses.hole_count));
+        }
+        for (k, ((c, score), class)) in covariances.iter().zip(scores).zip(classes).enumerate() {
+            let expected = poses.covariances_m2[k];
+            let got: Vec<f64> = c.as_array().ok_or("covariance")?.iter().filter_map(|v| v.as_f64()).collect();
+            let scale = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            if got.len() != 9 || got.iter().zip(&expected).any(|(g, e)| (g - e).abs() > 1e-12 * scale) {
+                return Err(format!(
+                    "capture {capture_time_ns} hole {k}: covariance {got:?}, the bridge had {expected:?}"
+                ));
+            }
+            let score = score.as_f64().ok_or("score")?;
+            // JSON keeps 17 digits; serde_json may read the last one a unit off.
+            if (score - detection.holes[k].score).abs() > 1e-12 {
+                return Err(format!("hole {k}: score {score}, the detector gave {}", detection.holes[k].score));
+            }
+            let kind = match poses.kinds[k] {
+                1 => "power",
+                2 => "ground",
+                _ => "?",
+            };
+            if class.as_str() != Some(kind) {
+                return Err(format!("hole {k}: class {class}, the pose message has {kind}"));
+            }
+            holes += 1;
+        }
+    }
+    Ok(holes)
+}
+
 #[test]
 fn images_published_by_cyclone_dds_give_hole_poses_on_ros2_within_a_millimetre() -> TestResult {
     // Fails, does not skip, when the independent implementation is missing.
@@ -135,6 +213,11 @@ fn images_published_by_cyclone_dds_give_hole_poses_on_ros2_within_a_millimetre()
     let domain = domain("ros2");
     let mut sidecar = Sidecar::new(&domain)?;
     let scenes = detectable_scenes(&sidecar.logs)?;
+    // The bridge's own inputs, read beside it.
+    let node = shm::node(&domain, "test")?;
+    let pose_sub = shm::messages::<HolePosesMsg>(&node, service::HOLE_POSES)?.subscriber_builder().create()?;
+    let detection_sub = shm::messages::<DetectionMsg>(&node, service::DETECTIONS)?.subscriber_builder().create()?;
+    let mut inputs = BridgeInputs::default();
 
     // A DDS domain of this run alone, and the bridge on the loopback interface only.
     let dds_domain = 1 + std::process::id() % 200;
@@ -173,6 +256,8 @@ frame_id = "camera_optical_frame"
         .arg(&scenes)
         .args(["--domain", &dds_domain.to_string(), "--timeout", "60"])
         .args(["--expect-diagnostics", "outlet/detector,outlet/normal,outlet/pose,outlet/ros2-bridge"])
+        .arg("--dump")
+        .arg(sidecar.logs.join("detections.json"))
         .env("CYCLONEDDS_URI", format!("file://{}", cyclone_config.display()))
         .env("PYTHONUNBUFFERED", "1")
         .stdin(Stdio::null())
@@ -180,10 +265,14 @@ frame_id = "camera_optical_frame"
         .stderr(stderr)
         .spawn()?;
     // Until the script ends, or a service dies (then there is no point waiting).
-    let ended = wait_for(Duration::from_secs(600), || match script.try_wait() {
-        Ok(Some(status)) => Some(Ok(status)),
-        _ => sidecar.dead().map(Err),
+    let ended = wait_for(Duration::from_secs(600), || {
+        inputs.drain(&pose_sub, &detection_sub);
+        match script.try_wait() {
+            Ok(Some(status)) => Some(Ok(status)),
+            _ => sidecar.dead().map(Err),
+        }
     });
+    inputs.drain(&pose_sub, &detection_sub);
     let status = match &ended {
         Some(Ok(status)) => format!("exited with {status}"),
         Some(Err(service)) => format!("was stopped: the service {service} died"),
@@ -214,5 +303,9 @@ frame_id = "camera_optical_frame"
     assert!(matches!(ended, Some(Ok(s)) if s.success()), "{report}");
     assert_eq!(dead, None, "a service died\n{report}");
     eprintln!("{}", read("ros2_interop.out"));
+    let dump: serde_json::Value = serde_json::from_str(&read("detections.json"))?;
+    let compared = detections_match_the_bridges_inputs(&dump, &inputs).map_err(|e| format!("{e}\n{report}"))?;
+    assert!(compared >= 2 * SCENES, "only {compared} holes compared");
+    eprintln!("the covariances, scores and classes of {compared} holes are the bridge's inputs");
     Ok(())
 }
