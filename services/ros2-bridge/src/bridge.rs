@@ -33,7 +33,8 @@
 use crate::Ros2Config;
 use crate::convert::{self, Rejection};
 use crate::msgs::{
-    CameraInfo, Detection3DArray, DiagnosticArray, Image, PointCloud2, PoseArray, PoseStamped, RosMessage, TFMessage,
+    CameraInfo, CompressedImage, Detection3DArray, DiagnosticArray, Image, PointCloud2, PoseArray, PoseStamped,
+    RosMessage, TFMessage,
 };
 use crate::perception;
 use futures::StreamExt;
@@ -211,6 +212,7 @@ impl StopHandle {
 /// The subscriptions, to be run on a thread of their own ([`Inputs::run`]).
 pub struct Inputs {
     image: Subscription<Image>,
+    compressed: Subscription<CompressedImage>,
     camera_info: Subscription<CameraInfo>,
     points: Subscription<PointCloud2>,
 }
@@ -220,12 +222,13 @@ impl Inputs {
     /// on the subscriptions' async streams (woken by rustdds' event loop, no
     /// polling) in a single-threaded executor.
     pub fn run(self, stop: Stop, mut on_input: impl FnMut(Input)) {
-        let Inputs { image, camera_info, points } = self;
+        let Inputs { image, compressed, camera_info, points } = self;
         futures::executor::block_on(async move {
             let images = image.async_stream();
+            let compressed = compressed.async_stream();
             let infos = camera_info.async_stream();
             let clouds = points.async_stream();
-            futures::pin_mut!(images, infos, clouds);
+            futures::pin_mut!(images, compressed, infos, clouds);
             let mut stop = stop.0;
             let undecodable =
                 |topic: &'static str, e: ros2_client::ReadError| Input::Undecodable { topic, reason: format!("{e:?}") };
@@ -234,6 +237,16 @@ impl Inputs {
                     m = images.next() => match m {
                         Some(Ok((msg, _))) => on_input(Input::Image(msg)),
                         Some(Err(e)) => on_input(undecodable("image", e)),
+                        None => break,
+                    },
+                    // Decoded here, on the inputs' thread: the image path
+                    // downstream is the same as for a raw image.
+                    m = compressed.next() => match m {
+                        Some(Ok((msg, _))) => match crate::convert::image_of_compressed(&msg) {
+                            Ok(image) => on_input(Input::Image(image)),
+                            Err(e) => on_input(Input::Undecodable { topic: "image_compressed", reason: e.to_string() }),
+                        },
+                        Some(Err(e)) => on_input(undecodable("image_compressed", e)),
                         None => break,
                     },
                     m = infos.next() => match m {
@@ -286,6 +299,7 @@ impl Bridge {
         let topics = &config.topics;
         let inputs = Inputs {
             image: subscription(&mut node, &topics.image, &SENSOR_QOS)?,
+            compressed: subscription(&mut node, &topics.image_compressed, &SENSOR_QOS)?,
             camera_info: subscription(&mut node, &topics.camera_info, &SENSOR_QOS)?,
             points: subscription(&mut node, &topics.points, &SENSOR_QOS)?,
         };

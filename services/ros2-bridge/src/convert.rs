@@ -3,8 +3,8 @@
 //! that does not fit is a [`Rejection`] that says what was wrong, with which value.
 
 use crate::msgs::{
-    CameraInfo, DiagnosticArray, DiagnosticStatus, Header, Image, KeyValue, Point, PointCloud2, PointField, Pose,
-    PoseArray, PoseStamped, Quaternion, Time,
+    CameraInfo, CompressedImage, DiagnosticArray, DiagnosticStatus, Header, Image, KeyValue, Point, PointCloud2,
+    PointField, Pose, PoseArray, PoseStamped, Quaternion, Time,
 };
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
 use outlet_protocol::CameraModel;
@@ -32,6 +32,8 @@ pub enum Rejection {
     SizeMismatch { image_width: u32, image_height: u32, info_width: u32, info_height: u32 },
     #[error("image: {0}")]
     Frame(String),
+    #[error("compressed image (format {format:?}): {reason}")]
+    Compressed { format: String, reason: String },
     #[error("camera info: distortion model {model:?} with {coefficients} coefficients (plumb_bob or none expected)")]
     Distortion { model: String, coefficients: usize },
     #[error("camera info: binning {x}x{y} (only full-resolution images)")]
@@ -282,6 +284,43 @@ pub fn image_of(header: Header, width: u32, height: u32, rgb: &[u8], format: Pix
     Some(Image { header, height, width, encoding: encoding_of(format).into(), is_bigendian: 0, step, data })
 }
 
+/// The largest compressed image decoded (pixels a side): a 16k camera; a
+/// header claiming more is refused before any memory is allocated for it.
+pub const MAX_COMPRESSED_SIDE: u32 = 16_384;
+
+/// A sensor_msgs/CompressedImage (JPEG or PNG, whatever `format` says: the
+/// bytes tell the codec) as an rgb8 Image with its header, for the image path.
+pub fn image_of_compressed(msg: &CompressedImage) -> Result<Image, Rejection> {
+    let bad = |reason: String| Rejection::Compressed { format: msg.format.clone(), reason };
+    let reader = image::ImageReader::new(std::io::Cursor::new(&msg.data))
+        .with_guessed_format()
+        .map_err(|e| bad(format!("{e}")))?;
+    match reader.format() {
+        Some(image::ImageFormat::Jpeg | image::ImageFormat::Png) => {}
+        Some(other) => return Err(bad(format!("{other:?} data (JPEG or PNG expected)"))),
+        None => return Err(bad(format!("{} bytes that are neither JPEG nor PNG", msg.data.len()))),
+    }
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_COMPRESSED_SIDE);
+    limits.max_image_height = Some(MAX_COMPRESSED_SIDE);
+    let mut reader = reader;
+    reader.limits(limits);
+    let rgb = reader.decode().map_err(|e| bad(format!("{e}")))?.into_rgb8();
+    let (width, height) = rgb.dimensions();
+    if width == 0 || height == 0 {
+        return Err(Rejection::EmptyImage { width, height });
+    }
+    Ok(Image {
+        header: msg.header.clone(),
+        height,
+        width,
+        encoding: "rgb8".into(),
+        is_bigendian: 0,
+        step: width * 3,
+        data: rgb.into_raw(),
+    })
+}
+
 /// Points (x, y, z, metres) as an unorganised PointCloud2 of float32 x, y, z
 /// packed in 12-byte points: for programs that play a ROS 2 depth camera.
 pub fn cloud_of(header: Header, points: &[[f32; 3]]) -> PointCloud2 {
@@ -504,6 +543,46 @@ pub fn diagnostics_of(beats: &[HeartbeatMsg], now_ns: u64, silent_after_ns: u64,
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn compressed(format: image::ImageFormat, name: &str) -> (image::RgbImage, CompressedImage) {
+        let rgb = image::RgbImage::from_fn(40, 30, |x, y| image::Rgb([(x * 6) as u8, (y * 8) as u8, 128]));
+        let mut data = Vec::new();
+        rgb.write_to(&mut std::io::Cursor::new(&mut data), format).expect("encodes");
+        let header = Header { stamp: Time { sec: 3, nanosec: 4 }, frame_id: "cam".into() };
+        (rgb, CompressedImage { header, format: name.into(), data })
+    }
+
+    #[test]
+    fn png_and_jpeg_compressed_images_become_rgb8_images() {
+        let (rgb, png) = compressed(image::ImageFormat::Png, "png");
+        let image = image_of_compressed(&png).expect("png");
+        assert_eq!((image.width, image.height, image.step, image.encoding.as_str()), (40, 30, 120, "rgb8"));
+        assert_eq!(image.header, png.header);
+        assert_eq!(image.data, rgb.as_raw().clone(), "PNG is lossless");
+        // image_transport's format string says more than the codec; the bytes decide.
+        let (rgb, jpeg) = compressed(image::ImageFormat::Jpeg, "rgb8; jpeg compressed bgr8");
+        let image = image_of_compressed(&jpeg).expect("jpeg");
+        assert_eq!((image.width, image.height), (40, 30));
+        let worst = image.data.iter().zip(rgb.as_raw()).map(|(a, b)| a.abs_diff(*b)).max().unwrap_or(u8::MAX);
+        assert!(worst < 40, "JPEG off by {worst} grey levels");
+    }
+
+    #[test]
+    fn compressed_data_that_is_not_an_image_is_refused_with_its_format() {
+        let header = Header::default();
+        for data in [Vec::new(), b"not an image at all".to_vec(), vec![0x89, b'P', b'N', b'G', 13, 10, 26, 10, 0, 0]] {
+            let msg = CompressedImage { header: header.clone(), format: "png".into(), data };
+            match image_of_compressed(&msg) {
+                Err(Rejection::Compressed { format, .. }) => assert_eq!(format, "png"),
+                other => panic!("{other:?}"),
+            }
+        }
+        // A PNG whose header claims 100000 pixels a side: refused, nothing allocated for it.
+        let (_, mut png) = compressed(image::ImageFormat::Png, "png");
+        png.data[16..20].copy_from_slice(&100_000u32.to_be_bytes());
+        assert!(image_of_compressed(&png).is_err());
+    }
+
     use crate::msgs::RegionOfInterest;
     use nalgebra::Vector3;
     use outlet_protocol::wire::{MAX_HOLES, SCHEMA_VERSION};

@@ -53,6 +53,9 @@ pub struct Ros2Config {
 pub struct Ros2Topics {
     /// In: sensor_msgs/Image (mono8, rgb8, bgr8), best-effort.
     pub image: String,
+    /// In: sensor_msgs/CompressedImage (JPEG or PNG, the image_transport
+    /// convention `<image>/compressed`), best-effort; decoded to rgb8.
+    pub image_compressed: String,
     /// In: sensor_msgs/CameraInfo of the images (plumb_bob or no distortion).
     pub camera_info: String,
     /// In: sensor_msgs/PointCloud2 with float32 x, y, z, best-effort.
@@ -86,6 +89,7 @@ impl Default for Ros2Topics {
     fn default() -> Self {
         Self {
             image: "/camera/image_raw".into(),
+            image_compressed: "/camera/image_raw/compressed".into(),
             camera_info: "/camera/camera_info".into(),
             points: "/camera/points".into(),
             holes: "/outlet/holes".into(),
@@ -102,9 +106,10 @@ pub const MAX_DOMAIN_ID: u16 = 232;
 
 impl Ros2Topics {
     /// Each topic with its key in the file.
-    pub fn named(&self) -> [(&'static str, &str); 8] {
+    pub fn named(&self) -> [(&'static str, &str); 9] {
         [
             ("image", &self.image),
+            ("image_compressed", &self.image_compressed),
             ("camera_info", &self.camera_info),
             ("points", &self.points),
             ("holes", &self.holes),

@@ -252,6 +252,17 @@ pub struct Image {
 }
 ros_message!(Image, "sensor_msgs", "Image");
 
+/// `sensor_msgs/CompressedImage`: `format` says the codec (`jpeg`, `png`, or
+/// image_transport's `rgb8; jpeg compressed bgr8`); the bytes tell it too.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct CompressedImage {
+    pub header: Header,
+    pub format: String,
+    #[serde(with = "serde_bytes")]
+    pub data: Vec<u8>,
+}
+ros_message!(CompressedImage, "sensor_msgs", "CompressedImage");
+
 /// `sensor_msgs/RegionOfInterest`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct RegionOfInterest {

@@ -10,8 +10,8 @@
 use outlet_protocol::wire::{HeartbeatMsg, HolePosesMsg, MAX_HOLES, SCHEMA_VERSION};
 use outlet_ros2_bridge::bridge::{self, Stop};
 use outlet_ros2_bridge::msgs::{
-    CameraInfo, Detection3DArray, DiagnosticArray, Header, Image, PointCloud2, PointField, PoseArray, PoseStamped,
-    TFMessage, Time,
+    CameraInfo, CompressedImage, Detection3DArray, DiagnosticArray, Header, Image, PointCloud2, PointField, PoseArray,
+    PoseStamped, TFMessage, Time,
 };
 use outlet_ros2_bridge::ros2_client::QosProfile;
 use outlet_ros2_bridge::{Bridge, Input, Ros2Config};
@@ -59,6 +59,8 @@ fn messages_cross_dds_on_loopback_both_ways() {
     let topics = &config.topics;
     let sensor = QosProfile::subscription_default();
     let image_pub = bridge::publisher::<Image>(&mut peer, &topics.image, &sensor).expect("image publisher");
+    let compressed_pub =
+        bridge::publisher::<CompressedImage>(&mut peer, &topics.image_compressed, &sensor).expect("compressed");
     let info_pub = bridge::publisher::<CameraInfo>(&mut peer, &topics.camera_info, &bridge::RESULT_QOS).expect("info");
     let cloud_pub = bridge::publisher::<PointCloud2>(&mut peer, &topics.points, &bridge::RESULT_QOS).expect("cloud");
     let holes_sub = bridge::subscription::<PoseArray>(&mut peer, &topics.holes, &bridge::RESULT_QOS).expect("holes");
@@ -69,6 +71,11 @@ fn messages_cross_dds_on_loopback_both_ways() {
     let det_sub =
         bridge::subscription::<Detection3DArray>(&mut peer, &topics.detections, &bridge::RESULT_QOS).expect("det");
 
+    // A small PNG on image_transport's compressed topic: decoded to rgb8.
+    let small = image::RgbImage::from_fn(64, 48, |x, y| image::Rgb([(x * 4) as u8, (y * 5) as u8, 77]));
+    let mut png = Vec::new();
+    small.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).expect("png");
+    let compressed = CompressedImage { header: stamp(), format: "png".into(), data: png };
     let image = Image {
         header: stamp(),
         height: 480,
@@ -131,9 +138,9 @@ fn messages_cross_dds_on_loopback_both_ways() {
 
     let (mut got_image, mut got_info, mut got_cloud) = (None, None, None);
     let (mut got_holes, mut got_pose, mut got_diag) = (None, None, None);
-    let (mut got_tf, mut got_det) = (None, None);
+    let (mut got_tf, mut got_det, mut got_decoded) = (None, None, None);
     let started = Instant::now();
-    while [got_image.is_none(), got_info.is_none(), got_cloud.is_none()].iter().any(|&b| b)
+    while [got_image.is_none(), got_info.is_none(), got_cloud.is_none(), got_decoded.is_none()].iter().any(|&b| b)
         || got_holes.is_none()
         || got_pose.is_none()
         || got_diag.is_none()
@@ -143,6 +150,7 @@ fn messages_cross_dds_on_loopback_both_ways() {
         assert!(started.elapsed() < Duration::from_secs(30), "nothing crossed in 30 s");
         // Discovery takes a moment; until both sides are matched, send again.
         let _ = image_pub.publish(image.clone());
+        let _ = compressed_pub.publish(compressed.clone());
         let _ = info_pub.publish(info.clone());
         let _ = cloud_pub.publish(cloud.clone());
         bridge.publish_poses(&poses, Some(&scores)).expect("poses");
@@ -151,6 +159,7 @@ fn messages_cross_dds_on_loopback_both_ways() {
         let wait = Instant::now();
         while wait.elapsed() < Duration::from_millis(200) {
             match rx.recv_timeout(Duration::from_millis(20)) {
+                Ok(Input::Image(m)) if m.width == 64 => got_decoded = Some(m),
                 Ok(Input::Image(m)) => got_image = Some(m),
                 Ok(Input::CameraInfo(m)) => got_info = Some(*m),
                 Ok(Input::Points(m)) => got_cloud = Some(m),
@@ -165,6 +174,10 @@ fn messages_cross_dds_on_loopback_both_ways() {
         }
     }
     assert_eq!(got_image.as_ref(), Some(&image), "a 900 kB image crosses whole");
+    let decoded = got_decoded.expect("the compressed image");
+    assert_eq!((decoded.width, decoded.height, decoded.encoding.as_str(), decoded.step), (64, 48, "rgb8", 192));
+    assert_eq!(decoded.header, compressed.header);
+    assert_eq!(decoded.data, small.into_raw(), "the PNG's pixels, exactly");
     assert_eq!(got_info.as_ref(), Some(&info));
     assert_eq!(got_cloud.as_ref(), Some(&cloud));
     let holes = got_holes.expect("holes");
