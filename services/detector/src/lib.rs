@@ -47,11 +47,18 @@ pub struct Candidate {
     pub level: u8,
 }
 
+/// The detector's grey of one colour pixel (any channel order): its brightest
+/// channel, as [`grey_of`] takes it.
+#[inline]
+pub fn grey_of_pixel(p: &[u8]) -> u8 {
+    p.iter().copied().max().unwrap_or(0)
+}
+
 /// Grey image for detection: the brightest channel (HSV value). Holes are dark in
 /// every channel while plates of any colour are bright in at least one, so this
 /// keeps hole contrast on orange, brown or white plates alike.
 pub fn grey_of(image: &image::RgbImage) -> image::GrayImage {
     let (w, h) = image.dimensions();
-    let data = image.as_raw().chunks_exact(3).map(|p| p[0].max(p[1]).max(p[2])).collect();
+    let data = image.as_raw().chunks_exact(3).map(grey_of_pixel).collect();
     image::GrayImage::from_raw(w, h, data).unwrap_or_else(|| image::GrayImage::new(w, h))
 }

@@ -82,7 +82,9 @@ fn grey_of_frame(header: &FrameHeader, format: PixelFormat, pixels: &[u8]) -> Op
         let row = row.get(..row_bytes)?;
         match format {
             PixelFormat::Mono8 => grey.extend_from_slice(row),
-            PixelFormat::Rgb8 | PixelFormat::Bgr8 => grey.extend(row.chunks_exact(3).map(|p| p[0].max(p[1]).max(p[2]))),
+            PixelFormat::Rgb8 | PixelFormat::Bgr8 => {
+                grey.extend(row.chunks_exact(3).map(outlet_detector::grey_of_pixel))
+            }
         }
     }
     image::GrayImage::from_raw(header.width, header.height, grey)
