@@ -3,6 +3,7 @@
 //! kept by contrast), `descriptor` (one-way descriptor: power / ground /
 //! background), `hashing` (geometric hashing: the one consistent outlet, or none).
 
+pub mod annotate;
 pub mod candidates;
 pub mod descriptor;
 pub mod detect;

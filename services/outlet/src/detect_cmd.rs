@@ -2,21 +2,20 @@
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use image::{Rgb, RgbImage};
 use nalgebra::Point2;
 use nalgebra::Vector3;
 use outlet::templates;
 use outlet_detector::candidates::find_candidates;
 use outlet_detector::descriptor::DescriptorParams;
-use outlet_detector::detect::{DetectReport, Detection, Detector, DetectorParams};
+use outlet_detector::detect::{Detection, Detector, DetectorParams};
+use outlet_detector::grey_of;
 use outlet_detector::template::{TrainingImage, train_template};
-use outlet_detector::{Class, grey_of};
 use outlet_normal::{PlaneParams, fit_wall_plane};
 use outlet_pose::{OutletPose, PoseError, solve_mono, solve_normal, solve_plane};
 use outlet_protocol::camera_info::read_camera_info;
 use outlet_protocol::ply::read_ply;
 use outlet_protocol::truth::PoseJson;
-use outlet_protocol::{CameraModel, HoleKind, OutletGeometry};
+use outlet_protocol::{CameraModel, OutletGeometry};
 use serde_json::{Value, json};
 use std::collections::HashMap;
 use std::io::Write;
@@ -209,7 +208,7 @@ fn run_one(
         } else {
             path.to_path_buf()
         };
-        draw_annotation(&image, &report)
+        outlet_detector::annotate::draw_report(&image, &report)
             .save_with_format(&out, image::ImageFormat::Png)
             .with_context(|| format!("writing {}", out.display()))?;
     }
@@ -350,56 +349,6 @@ fn human(record: &Value) -> String {
         }
         _ => format!("{image}: no outlet ({ms:.1} ms)"),
     }
-}
-
-/// Colours of the paper's Fig. 2: yellow power, blue ground, red background.
-fn class_colour(class: Class) -> Rgb<u8> {
-    match class {
-        Class::Power => Rgb([255, 220, 0]),
-        Class::Ground => Rgb([40, 120, 255]),
-        Class::Background => Rgb([230, 40, 40]),
-    }
-}
-
-fn draw_circle(image: &mut RgbImage, c: Point2<f64>, r: f64, colour: Rgb<u8>) {
-    let steps = (r * 8.0).max(16.0) as usize;
-    for k in 0..steps {
-        let a = k as f64 * std::f64::consts::TAU / steps as f64;
-        let (x, y) = ((c.x + r * a.cos()).round(), (c.y + r * a.sin()).round());
-        if x >= 0.0 && y >= 0.0 && (x as u32) < image.width() && (y as u32) < image.height() {
-            image.put_pixel(x as u32, y as u32, colour);
-        }
-    }
-}
-
-/// The image with classified candidates (small circles) and the found holes
-/// (large circles with a cross), for a person to check.
-pub fn draw_annotation(image: &RgbImage, report: &DetectReport) -> RgbImage {
-    let mut out = image.clone();
-    for (c, class) in &report.candidates {
-        draw_circle(&mut out, c.centre, 2.5, class_colour(*class));
-    }
-    if let Some(d) = &report.detection {
-        for h in &d.holes {
-            let colour = match h.kind {
-                HoleKind::Power => class_colour(Class::Power),
-                HoleKind::Ground => class_colour(Class::Ground),
-            };
-            draw_circle(&mut out, h.pixel, 7.0, colour);
-            draw_circle(&mut out, h.pixel, 8.0, Rgb([0, 0, 0]));
-            for d in -3i32..=3 {
-                for (x, y) in [(h.pixel.x + d as f64, h.pixel.y), (h.pixel.x, h.pixel.y + d as f64)] {
-                    if x >= 0.0 && y >= 0.0 && (x as u32) < out.width() && (y as u32) < out.height() {
-                        out.put_pixel(x as u32, y as u32, Rgb([0, 255, 0]));
-                    }
-                }
-            }
-        }
-        crate::font::draw_text(&mut out, &format!("outlet: score {}", d.score), 6, 6, 2, Rgb([0, 255, 0]));
-    } else {
-        crate::font::draw_text(&mut out, "no outlet", 6, 6, 2, Rgb([255, 60, 60]));
-    }
-    out
 }
 
 #[derive(Args, Debug)]
