@@ -32,20 +32,23 @@
 
 use crate::Ros2Config;
 use crate::convert::{self, Rejection};
+use crate::debug_image::{DebugImage, JPEG_QUALITY};
+use crate::markers;
 use crate::msgs::{
-    CameraInfo, CompressedImage, Detection3DArray, DiagnosticArray, Image, PointCloud2, PoseArray, PoseStamped,
-    RosMessage, TFMessage,
+    CameraInfo, CompressedImage, Detection3DArray, DiagnosticArray, Image, MarkerArray, PointCloud2, PoseArray,
+    PoseStamped, RosMessage, TFMessage,
 };
 use crate::perception;
 use futures::StreamExt;
 use futures::channel::oneshot;
-use outlet_protocol::wire::{HolePosesMsg, MAX_HOLES};
-use ros2_client::dds::rustdds::{DomainParticipant, DomainParticipantBuilder};
+use outlet_protocol::wire::{HolePosesMsg, MAX_HOLES, WallPlaneMsg};
+use ros2_client::dds::rustdds::{DomainParticipant, DomainParticipantBuilder, TopicDescription};
 use ros2_client::dds::{Context, Node, Publisher, Subscription};
 use ros2_client::qos::{History, WhenFull};
 use ros2_client::{Name, NodeName, NodeOptions, QosProfile};
 use std::net::IpAddr;
-use std::time::Duration;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
 
 /// Why the bridge could not be set up, or a message not sent.
 #[derive(Debug, thiserror::Error)]
@@ -79,6 +82,17 @@ pub const RESULT_QOS: QosProfile = QosProfile::publisher_default()
 pub const TF_QOS: QosProfile = QosProfile::publisher_default()
     .reliability_reliable(WhenFull::Wait(Duration::from_millis(20)))
     .history(History::KeepLast { depth: 100 });
+
+/// The debug images: reliable (so that reliable and best-effort readers
+/// match), volatile, the last 2. A reader that stops acknowledging holds a
+/// publish for at most 20 ms, then that image is dropped.
+pub const DEBUG_IMAGE_QOS: QosProfile = QosProfile::publisher_default()
+    .reliability_reliable(WhenFull::Wait(Duration::from_millis(20)))
+    .history(History::KeepLast { depth: 2 });
+
+/// How long the answer to "does anyone subscribe to the debug image?" is
+/// reused before DDS discovery is asked again.
+pub const DEBUG_SUBSCRIBERS_CHECK: Duration = Duration::from_millis(500);
 
 /// Keeps only the errors of rustdds' and ros2-client's logs (they log through
 /// the `log` crate) unless RUST_LOG is set. On loopback only, rustdds 0.15
@@ -159,9 +173,55 @@ pub fn node(context: &Context, name: &str) -> Result<Node, BridgeError> {
 
 /// A publisher of `M` on `topic`.
 pub fn publisher<M: RosMessage>(node: &mut Node, topic: &str, qos: &QosProfile) -> Result<Publisher<M>, BridgeError> {
+    publisher_on(node, topic, qos).map(|(p, _)| p)
+}
+
+/// [`publisher`], and the DDS topic it writes (`rt/outlet/debug_image`).
+fn publisher_on<M: RosMessage>(
+    node: &mut Node,
+    topic: &str,
+    qos: &QosProfile,
+) -> Result<(Publisher<M>, DdsTopic), BridgeError> {
     let name = topic_name(topic).map_err(|e| dds("topic", e))?;
     let t = node.create_topic(&name, M::type_name(), qos).map_err(|e| dds(format!("topic {topic}"), e))?;
-    node.create_publisher(&t, Some(qos.clone())).map_err(|e| dds(format!("publisher on {topic}"), e))
+    let publisher =
+        node.create_publisher(&t, Some(qos.clone())).map_err(|e| dds(format!("publisher on {topic}"), e))?;
+    Ok((publisher, DdsTopic { name: t.name(), type_name: M::DDS_TYPE }))
+}
+
+/// A topic as DDS names it, with its type.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct DdsTopic {
+    name: String,
+    type_name: &'static str,
+}
+
+/// Readers that DDS discovery knows of on `topic` (in other participants, of
+/// this process or elsewhere), of its type.
+fn readers_of(participant: &DomainParticipant, topic: &DdsTopic) -> usize {
+    participant
+        .discovered_readers()
+        .iter()
+        .filter(|r| {
+            let data = &r.subscription_topic_data;
+            *data.topic_name() == topic.name && data.type_name() == topic.type_name
+        })
+        .count()
+}
+
+/// Who subscribes to the debug images.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct DebugSubscribers {
+    /// The rgb8 Image.
+    pub image: bool,
+    /// The JPEG CompressedImage.
+    pub compressed: bool,
+}
+
+impl DebugSubscribers {
+    pub fn any(&self) -> bool {
+        self.image || self.compressed
+    }
 }
 
 /// A subscription to `M` on `topic`.
@@ -281,13 +341,19 @@ pub struct Bridge {
     detections: Publisher<Detection3DArray>,
     tf: Publisher<TFMessage>,
     diagnostics: Publisher<DiagnosticArray>,
+    markers: Publisher<MarkerArray>,
+    debug_image: Publisher<Image>,
+    debug_compressed: Publisher<CompressedImage>,
+    debug_topics: [DdsTopic; 2],
+    /// The last answer of [`Bridge::debug_subscribers`] and when it was asked.
+    debug_subscribers: Mutex<Option<(Instant, DebugSubscribers)>>,
     inputs: Option<Inputs>,
     frame_id: String,
     outlet_frame: String,
     hole_frames: bool,
     // Dropped after the publishers and subscriptions: the node, then the participant.
     _node: Node,
-    _context: Context,
+    context: Context,
 }
 
 impl Bridge {
@@ -303,18 +369,26 @@ impl Bridge {
             camera_info: subscription(&mut node, &topics.camera_info, &SENSOR_QOS)?,
             points: subscription(&mut node, &topics.points, &SENSOR_QOS)?,
         };
+        let (debug_image, image_topic) = publisher_on(&mut node, &topics.debug_image, &DEBUG_IMAGE_QOS)?;
+        let (debug_compressed, compressed_topic) =
+            publisher_on(&mut node, &topics.debug_image_compressed, &DEBUG_IMAGE_QOS)?;
         Ok(Self {
             holes: publisher(&mut node, &topics.holes, &RESULT_QOS)?,
             pose: publisher(&mut node, &topics.pose, &RESULT_QOS)?,
             detections: publisher(&mut node, &topics.detections, &RESULT_QOS)?,
             tf: publisher(&mut node, &topics.tf, &TF_QOS)?,
             diagnostics: publisher(&mut node, &topics.diagnostics, &RESULT_QOS)?,
+            markers: publisher(&mut node, &topics.markers, &RESULT_QOS)?,
+            debug_image,
+            debug_compressed,
+            debug_topics: [image_topic, compressed_topic],
+            debug_subscribers: Mutex::new(None),
             inputs: Some(inputs),
             frame_id: config.frame_id.clone(),
             outlet_frame: config.outlet_frame.clone(),
             hole_frames: config.hole_frames,
             _node: node,
-            _context: context,
+            context,
         })
     }
 
@@ -325,18 +399,69 @@ impl Bridge {
 
     /// Publishes one frame's hole poses: a PoseArray on the holes topic, a
     /// PoseStamped on the pose topic, the outlet's (and the holes') transforms
-    /// on tf, and the holes as a Detection3DArray with `scores` (the detector's
-    /// of each hole, from the same frame's detection; 0 where None). Nothing
-    /// for a result without a pose ([`convert::Rejection::NoPose`]).
-    pub fn publish_poses(&self, msg: &HolePosesMsg, scores: Option<&[f64; MAX_HOLES]>) -> Result<(), BridgeError> {
+    /// on tf, the holes as a Detection3DArray with `scores` (the detector's
+    /// of each hole, from the same frame's detection; 0 where None), and the
+    /// rviz markers ([`markers::markers_of`]) with the wall `plane` of the
+    /// result's moment, if any. Nothing for a result without a pose
+    /// ([`convert::Rejection::NoPose`]).
+    pub fn publish_poses(
+        &self,
+        msg: &HolePosesMsg,
+        scores: Option<&[f64; MAX_HOLES]>,
+        plane: Option<&WallPlaneMsg>,
+    ) -> Result<(), BridgeError> {
         let (array, stamped) = convert::poses_of(msg, &self.frame_id)?;
         let tf = perception::tf_of(&array, &stamped, &self.outlet_frame, self.hole_frames);
-        // Made before anything is sent; a covariance that is not one holds back only the detections.
+        // Made before anything is sent; a covariance that is not one holds back
+        // only the detections and markers.
         let detections = perception::detections_of(&array, msg, scores);
+        let markers = markers::markers_of(&array, msg, plane);
         self.holes.publish(array).map_err(|e| dds("publishing the hole poses", e))?;
         self.pose.publish(stamped).map_err(|e| dds("publishing the outlet pose", e))?;
         self.tf.publish(tf).map_err(|e| dds("publishing tf", e))?;
-        self.detections.publish(detections?).map_err(|e| dds("publishing the detections", e))
+        self.detections.publish(detections?).map_err(|e| dds("publishing the detections", e))?;
+        self.markers.publish(markers?).map_err(|e| dds("publishing the markers", e))
+    }
+
+    /// Who subscribes to the debug images now: readers of their topics and
+    /// types that DDS discovery knows of, asked at most every
+    /// [`DEBUG_SUBSCRIBERS_CHECK`] (the answer in between is the last one).
+    ///
+    /// ros2-client's `Publisher::get_subscription_count` counts matched
+    /// readers only while the node runs a ros2-client spinner, which the
+    /// bridge does not, and the rustdds DataWriter (whose
+    /// `get_matched_subscriptions` would say it) is private to ros2-client's
+    /// Publisher; the participant's discovery database is what both read.
+    pub fn debug_subscribers(&self) -> DebugSubscribers {
+        let mut last = self.debug_subscribers.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((at, answer)) = *last
+            && at.elapsed() < DEBUG_SUBSCRIBERS_CHECK
+        {
+            return answer;
+        }
+        let participant = self.context.domain_participant();
+        let [image, compressed] = &self.debug_topics;
+        let answer = DebugSubscribers {
+            image: readers_of(&participant, image) > 0,
+            compressed: readers_of(&participant, compressed) > 0,
+        };
+        *last = Some((Instant::now(), answer));
+        answer
+    }
+
+    /// Publishes a debug image on the topics `to` names: the rgb8 Image, a
+    /// JPEG CompressedImage (encoded here), or both.
+    pub fn publish_debug_image(&self, image: DebugImage, to: DebugSubscribers) -> Result<(), BridgeError> {
+        if to.compressed {
+            let jpeg = image.to_jpeg(&self.frame_id, JPEG_QUALITY).map_err(|e| dds("encoding the debug image", e))?;
+            self.debug_compressed.publish(jpeg).map_err(|e| dds("publishing the compressed debug image", e))?;
+        }
+        if to.image {
+            self.debug_image
+                .publish(image.into_image(&self.frame_id))
+                .map_err(|e| dds("publishing the debug image", e))?;
+        }
+        Ok(())
     }
 
     pub fn publish_diagnostics(&self, array: DiagnosticArray) -> Result<(), BridgeError> {

@@ -383,7 +383,7 @@ pub fn quaternion_of(rotation_row_major: &[f64; 9]) -> Option<UnitQuaternion<f64
     Some(if q.w < 0.0 { UnitQuaternion::new_unchecked(-q.into_inner()) } else { q })
 }
 
-fn ros_quaternion(q: &UnitQuaternion<f64>) -> Quaternion {
+pub(crate) fn ros_quaternion(q: &UnitQuaternion<f64>) -> Quaternion {
     Quaternion { x: q.i, y: q.j, z: q.k, w: q.w }
 }
 

@@ -9,6 +9,10 @@
 //!   functions that check everything that comes from the network.
 //! - [`perception`]: a result as tf transforms and a `vision_msgs`
 //!   Detection3DArray with the holes' covariances.
+//! - [`markers`]: a result as a `visualization_msgs` MarkerArray for rviz: the
+//!   holes' uncertainty ellipsoids, the plate, the wall plane.
+//! - [`debug_image`]: the frame with what was found drawn on it, as an Image
+//!   and a JPEG CompressedImage, joined from the frame, its detection and its pose.
 //! - [`bridge`]: the DDS participant (ros2-client on rustdds) on the configured
 //!   network interfaces only, its subscriptions and publishers.
 //!
@@ -18,10 +22,12 @@
 pub mod bridge;
 pub mod cdr;
 pub mod convert;
+pub mod debug_image;
+pub mod markers;
 pub mod msgs;
 pub mod perception;
 
-pub use bridge::{Bridge, BridgeError, Input, Inputs, Stop};
+pub use bridge::{Bridge, BridgeError, DebugSubscribers, Input, Inputs, Stop};
 pub use convert::Rejection;
 /// The ros2-client this crate is built on, for programs that talk to the bridge.
 pub use ros2_client;
@@ -70,6 +76,15 @@ pub struct Ros2Topics {
     pub tf: String,
     /// Out: diagnostic_msgs/DiagnosticArray of the services' heartbeats, reliable.
     pub diagnostics: String,
+    /// Out: sensor_msgs/Image (rgb8), the frame with what was found drawn on
+    /// it; made only while the topic has a subscriber.
+    pub debug_image: String,
+    /// Out: sensor_msgs/CompressedImage (JPEG) of the same, image_transport's
+    /// `<debug_image>/compressed`; made only while the topic has a subscriber.
+    pub debug_image_compressed: String,
+    /// Out: visualization_msgs/MarkerArray for rviz: the holes (ellipsoids of
+    /// their 3-sigma position uncertainty), the plate, the wall plane.
+    pub markers: String,
 }
 
 impl Default for Ros2Config {
@@ -97,6 +112,9 @@ impl Default for Ros2Topics {
             detections: "/outlet/detections".into(),
             tf: "/tf".into(),
             diagnostics: "/diagnostics".into(),
+            debug_image: "/outlet/debug_image".into(),
+            debug_image_compressed: "/outlet/debug_image/compressed".into(),
+            markers: "/outlet/markers".into(),
         }
     }
 }
@@ -106,7 +124,7 @@ pub const MAX_DOMAIN_ID: u16 = 232;
 
 impl Ros2Topics {
     /// Each topic with its key in the file.
-    pub fn named(&self) -> [(&'static str, &str); 9] {
+    pub fn named(&self) -> [(&'static str, &str); 12] {
         [
             ("image", &self.image),
             ("image_compressed", &self.image_compressed),
@@ -117,6 +135,9 @@ impl Ros2Topics {
             ("detections", &self.detections),
             ("tf", &self.tf),
             ("diagnostics", &self.diagnostics),
+            ("debug_image", &self.debug_image),
+            ("debug_image_compressed", &self.debug_image_compressed),
+            ("markers", &self.markers),
         ]
     }
 }
@@ -159,6 +180,9 @@ mod tests {
         assert_eq!(c.topics.holes, "/outlet/holes");
         assert_eq!(c.topics.tf, "/tf");
         assert_eq!(c.topics.detections, "/outlet/detections");
+        assert_eq!(c.topics.debug_image, "/outlet/debug_image");
+        assert_eq!(c.topics.debug_image_compressed, "/outlet/debug_image/compressed");
+        assert_eq!(c.topics.markers, "/outlet/markers");
         assert_eq!((c.outlet_frame.as_str(), c.hole_frames), ("outlet", true));
         assert_eq!(c.check(), Ok(()));
     }
@@ -184,5 +208,11 @@ mod tests {
         let mut c = Ros2Config::default();
         c.topics.tf = "tf topic".into();
         assert!(c.check().expect_err("topic").contains("ros2.topics.tf"));
+        let mut c = Ros2Config::default();
+        c.topics.markers = "/outlet/markers/".into();
+        assert!(c.check().expect_err("topic").contains("ros2.topics.markers"));
+        let mut c = Ros2Config::default();
+        c.topics.debug_image_compressed = "/outlet/debug image".into();
+        assert!(c.check().expect_err("topic").contains("ros2.topics.debug_image_compressed"));
     }
 }

@@ -386,6 +386,103 @@ pub struct DiagnosticArray {
 }
 ros_message!(DiagnosticArray, "diagnostic_msgs", "DiagnosticArray");
 
+/// `builtin_interfaces/Duration`: seconds and nanoseconds (0..1e9) of a span.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Duration {
+    pub sec: i32,
+    pub nanosec: u32,
+}
+ros_message!(Duration, "builtin_interfaces", "Duration");
+
+/// `std_msgs/ColorRGBA`: each channel in 0..1, `a` the opacity.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct ColorRGBA {
+    pub r: f32,
+    pub g: f32,
+    pub b: f32,
+    pub a: f32,
+}
+ros_message!(ColorRGBA, "std_msgs", "ColorRGBA");
+
+/// `visualization_msgs/UVCoordinate`: a vertex's place in a marker's texture (0..1).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct UVCoordinate {
+    pub u: f64,
+    pub v: f64,
+}
+ros_message!(UVCoordinate, "visualization_msgs", "UVCoordinate");
+
+/// `visualization_msgs/MeshFile`: a mesh file sent in the message.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct MeshFile {
+    pub filename: String,
+    #[serde(with = "serde_bytes")]
+    pub data: Vec<u8>,
+}
+ros_message!(MeshFile, "visualization_msgs", "MeshFile");
+
+/// `visualization_msgs/Marker` as of visualization_msgs 3 (Galactic; Humble
+/// and Jazzy have the same fields): after `colors` come the texture fields
+/// (`texture_resource`, `texture`, `uv_coordinates`), `text`, and the mesh
+/// fields (`mesh_resource`, `mesh_file`, `mesh_use_embedded_materials`).
+/// The bridge leaves the texture and mesh fields empty.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Marker {
+    pub header: Header,
+    /// With `id`, the marker's name: a marker of the same `ns` and `id` replaces it.
+    pub ns: String,
+    pub id: i32,
+    /// `Marker::SPHERE`, `CUBE`, ... (ROS `int32 type`).
+    pub type_: i32,
+    /// `Marker::ADD`, `DELETE` or `DELETEALL`.
+    pub action: i32,
+    /// The marker's centre and orientation in `header.frame_id`.
+    pub pose: Pose,
+    /// Full extent along the marker's own axes (m): a SPHERE's diameters, a CUBE's edges.
+    pub scale: Vector3,
+    pub color: ColorRGBA,
+    /// Zero: until replaced or deleted.
+    pub lifetime: Duration,
+    pub frame_locked: bool,
+    pub points: Vec<Point>,
+    pub colors: Vec<ColorRGBA>,
+    pub texture_resource: String,
+    pub texture: CompressedImage,
+    pub uv_coordinates: Vec<UVCoordinate>,
+    pub text: String,
+    pub mesh_resource: String,
+    pub mesh_file: MeshFile,
+    pub mesh_use_embedded_materials: bool,
+}
+ros_message!(Marker, "visualization_msgs", "Marker");
+
+impl Marker {
+    pub const ARROW: i32 = 0;
+    pub const CUBE: i32 = 1;
+    pub const SPHERE: i32 = 2;
+    pub const CYLINDER: i32 = 3;
+    pub const LINE_STRIP: i32 = 4;
+    pub const LINE_LIST: i32 = 5;
+    pub const CUBE_LIST: i32 = 6;
+    pub const SPHERE_LIST: i32 = 7;
+    pub const POINTS: i32 = 8;
+    pub const TEXT_VIEW_FACING: i32 = 9;
+    pub const MESH_RESOURCE: i32 = 10;
+    pub const TRIANGLE_LIST: i32 = 11;
+    pub const ADD: i32 = 0;
+    pub const MODIFY: i32 = 0;
+    pub const DELETE: i32 = 2;
+    /// Deletes every marker (of `ns`, when it is not empty) shown so far.
+    pub const DELETEALL: i32 = 3;
+}
+
+/// `visualization_msgs/MarkerArray`: markers applied in order.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct MarkerArray {
+    pub markers: Vec<Marker>,
+}
+ros_message!(MarkerArray, "visualization_msgs", "MarkerArray");
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -403,6 +500,8 @@ mod tests {
         assert_eq!(DiagnosticArray::DDS_TYPE, "diagnostic_msgs::msg::dds_::DiagnosticArray_");
         assert_eq!(TFMessage::DDS_TYPE, "tf2_msgs::msg::dds_::TFMessage_");
         assert_eq!(Detection3DArray::DDS_TYPE, "vision_msgs::msg::dds_::Detection3DArray_");
+        assert_eq!(MarkerArray::DDS_TYPE, "visualization_msgs::msg::dds_::MarkerArray_");
+        assert_eq!(ColorRGBA::DDS_TYPE, "std_msgs::msg::dds_::ColorRGBA_");
         for (made, constant) in [
             dds_type::<Time>(),
             dds_type::<Header>(),
@@ -429,6 +528,12 @@ mod tests {
             dds_type::<BoundingBox3D>(),
             dds_type::<Detection3D>(),
             dds_type::<Detection3DArray>(),
+            dds_type::<Duration>(),
+            dds_type::<ColorRGBA>(),
+            dds_type::<UVCoordinate>(),
+            dds_type::<MeshFile>(),
+            dds_type::<Marker>(),
+            dds_type::<MarkerArray>(),
         ] {
             assert_eq!(made, constant);
         }
@@ -543,6 +648,77 @@ mod tests {
         // count 4 | stamp 8 | "cam" 4 + 4 | "outlet" 4 + 7 | pad to 32 | 7 doubles.
         assert_eq!(bytes.len(), 32 + 56);
         assert_eq!(cdr_encoding::from_bytes::<TFMessage, LittleEndian>(&bytes).expect("decodes").0, tf);
+    }
+
+    #[test]
+    fn a_marker_is_laid_out_as_visualization_msgs_lays_it_out() {
+        let marker = Marker {
+            header: Header { stamp: Time { sec: 1, nanosec: 2 }, frame_id: "c".into() },
+            ns: "holes".into(),
+            id: 3,
+            type_: Marker::SPHERE,
+            action: Marker::ADD,
+            pose: Pose { position: Point { x: 0.1, y: 0.2, z: 0.5 }, orientation: Quaternion::default() },
+            scale: Vector3 { x: 0.001, y: 0.002, z: 0.006 },
+            color: ColorRGBA { r: 1.0, g: 0.5, b: 0.25, a: 0.9 },
+            lifetime: Duration { sec: 7, nanosec: 8 },
+            frame_locked: true,
+            ..Marker::default()
+        };
+        let bytes = cdr(&marker);
+        let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes"));
+        let f64_at = |at: usize| f64::from_le_bytes(bytes[at..at + 8].try_into().expect("8 bytes"));
+        let f32_at = |at: usize| f32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes"));
+        // header 0..14 | ns at 16 (4 + 6) | id 28, type 32, action 36 | pose 40..96 |
+        // scale 96..120 | color 120..136 | lifetime 136..144 | frame_locked 144 |
+        // points count 148, colors count 152 | texture_resource 156 (4 + 1) |
+        // texture: stamp 164, frame_id 172 (4 + 1), format 180 (4 + 1), data count 188 |
+        // uv_coordinates count 192 | text 196 (4 + 1) | mesh_resource 204 (4 + 1) |
+        // mesh_file: filename 212 (4 + 1), data count 220 | mesh_use_embedded_materials 224.
+        assert_eq!(&bytes[20..26], b"holes\0");
+        assert_eq!([u32_at(28), u32_at(32), u32_at(36)], [3, 2, 0]);
+        assert_eq!([f64_at(40), f64_at(48), f64_at(56), f64_at(88)], [0.1, 0.2, 0.5, 1.0]);
+        assert_eq!([f64_at(96), f64_at(104), f64_at(112)], [0.001, 0.002, 0.006]);
+        assert_eq!([f32_at(120), f32_at(124), f32_at(128), f32_at(132)], [1.0, 0.5, 0.25, 0.9]);
+        assert_eq!([u32_at(136), u32_at(140)], [7, 8]);
+        assert_eq!(bytes[144], 1);
+        assert_eq!([u32_at(148), u32_at(152)], [0, 0]);
+        // Every empty string is its terminating NUL alone.
+        for at in [156, 172, 180, 196, 204, 212] {
+            assert_eq!((u32_at(at), bytes[at + 4]), (1, 0), "string at {at}");
+        }
+        assert_eq!([u32_at(188), u32_at(192), u32_at(220)], [0, 0, 0]);
+        assert_eq!(bytes[224], 0);
+        assert_eq!(bytes.len(), 225);
+        let (back, _) = cdr_encoding::from_bytes::<Marker, LittleEndian>(&bytes).expect("decodes");
+        assert_eq!(back, marker);
+    }
+
+    #[test]
+    fn marker_arrays_round_trip_through_cdr_with_every_field() {
+        let full = Marker {
+            header: Header { stamp: Time { sec: 5, nanosec: 6 }, frame_id: "cam".into() },
+            ns: "n".into(),
+            type_: Marker::TRIANGLE_LIST,
+            points: vec![Point { x: 1.0, y: 2.0, z: 3.0 }; 3],
+            colors: vec![ColorRGBA { r: 0.1, g: 0.2, b: 0.3, a: 0.4 }; 3],
+            texture_resource: "embedded://t".into(),
+            texture: CompressedImage { header: Header::default(), format: "png".into(), data: vec![1, 2, 3] },
+            uv_coordinates: vec![UVCoordinate { u: 0.25, v: 0.75 }; 3],
+            text: "hole_0".into(),
+            mesh_resource: "embedded://m".into(),
+            mesh_file: MeshFile { filename: "m.stl".into(), data: vec![9; 5] },
+            mesh_use_embedded_materials: true,
+            ..Marker::default()
+        };
+        let array = MarkerArray { markers: vec![Marker { action: Marker::DELETEALL, ..Marker::default() }, full] };
+        let bytes = cdr(&array);
+        assert_eq!(u32::from_le_bytes(bytes[..4].try_into().expect("4")), 2);
+        let (back, _) = cdr_encoding::from_bytes::<MarkerArray, LittleEndian>(&bytes).expect("decodes");
+        assert_eq!(back, array);
+        for cut in 0..bytes.len() {
+            assert!(cdr_encoding::from_bytes::<MarkerArray, LittleEndian>(&bytes[..cut]).is_err(), "cut {cut}");
+        }
     }
 
     #[test]

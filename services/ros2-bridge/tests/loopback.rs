@@ -1,17 +1,24 @@
 //! The bridge's DDS side against a second ros2-client participant in this
 //! process: images, camera info and clouds reach the bridge's inputs, hole
-//! poses and diagnostics reach a subscriber, with the ROS 2 types and QoS.
+//! poses, markers, diagnostics and the debug images reach a subscriber, with
+//! the ROS 2 types and QoS; the debug image is wanted only once a subscriber is there.
 //!
 //! LOOPBACK ONLY: both participants are built with `interfaces = ["lo"]`, i.e.
 //! a rustdds DomainParticipant whose only network is 127.0.0.1 (no multicast:
 //! `lo` is not multicast-capable; discovery is unicast to 127.0.0.1). The DDS
 //! domain id is this test process's own (from its pid, in 1..=200).
 
-use outlet_protocol::wire::{HeartbeatMsg, HolePosesMsg, MAX_HOLES, SCHEMA_VERSION};
+use outlet_protocol::CameraModel;
+use outlet_protocol::wire::{
+    DetectionMsg, FrameHeader, HeartbeatMsg, HoleMsg, HolePosesMsg, MAX_HOLES, PixelFormat, SCHEMA_VERSION,
+    WallPlaneMsg,
+};
 use outlet_ros2_bridge::bridge::{self, Stop};
+use outlet_ros2_bridge::debug_image::{DebugImage, DebugImages};
+use outlet_ros2_bridge::markers;
 use outlet_ros2_bridge::msgs::{
-    CameraInfo, CompressedImage, Detection3DArray, DiagnosticArray, Header, Image, PointCloud2, PointField, PoseArray,
-    PoseStamped, TFMessage, Time,
+    CameraInfo, CompressedImage, Detection3DArray, DiagnosticArray, Header, Image, Marker, MarkerArray, PointCloud2,
+    PointField, PoseArray, PoseStamped, TFMessage, Time,
 };
 use outlet_ros2_bridge::ros2_client::QosProfile;
 use outlet_ros2_bridge::{Bridge, Input, Ros2Config};
@@ -70,6 +77,14 @@ fn messages_cross_dds_on_loopback_both_ways() {
     let tf_sub = bridge::subscription::<TFMessage>(&mut peer, &topics.tf, &bridge::TF_QOS).expect("tf");
     let det_sub =
         bridge::subscription::<Detection3DArray>(&mut peer, &topics.detections, &bridge::RESULT_QOS).expect("det");
+    let marker_sub =
+        bridge::subscription::<MarkerArray>(&mut peer, &topics.markers, &bridge::RESULT_QOS).expect("markers");
+    // Nobody watches the debug image yet: the bridge would make none.
+    assert!(!bridge.debug_subscribers().any());
+    // The debug images, read best-effort as image viewers often do.
+    let debug_sub = bridge::subscription::<Image>(&mut peer, &topics.debug_image, &sensor).expect("debug image");
+    let debug_jpeg_sub =
+        bridge::subscription::<CompressedImage>(&mut peer, &topics.debug_image_compressed, &sensor).expect("jpeg");
 
     // A small PNG on image_transport's compressed topic: decoded to rgb8.
     let small = image::RgbImage::from_fn(64, 48, |x, y| image::Rgb([(x * 4) as u8, (y * 5) as u8, 77]));
@@ -132,6 +147,17 @@ fn messages_cross_dds_on_loopback_both_ways() {
     poses.covariances_m2[1] = [4e-8, 1e-9, 0.0, 1e-9, 4e-8, 0.0, 0.0, 0.0, 9e-8];
     let mut scores = [0.0; MAX_HOLES];
     scores[..2].copy_from_slice(&[0.9, 0.8]);
+    let plane = WallPlaneMsg {
+        schema_version: SCHEMA_VERSION,
+        inliers: 500,
+        frame_id: 9,
+        capture_time_ns: poses.capture_time_ns,
+        normal: [0.0, 0.0, 1.0],
+        distance_m: 0.505,
+        tangent: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        covariance: [0.0; 9],
+    };
+    let debug_image = debug_image_of(&poses);
     let mut beat = HeartbeatMsg::new("detector", 1, 0);
     beat.published_ns = 1_700_000_000_000_000_000;
     beat.output_rate_hz = 10.0;
@@ -139,6 +165,7 @@ fn messages_cross_dds_on_loopback_both_ways() {
     let (mut got_image, mut got_info, mut got_cloud) = (None, None, None);
     let (mut got_holes, mut got_pose, mut got_diag) = (None, None, None);
     let (mut got_tf, mut got_det, mut got_decoded) = (None, None, None);
+    let (mut got_markers, mut got_debug, mut got_jpeg) = (None, None, None);
     let started = Instant::now();
     while [got_image.is_none(), got_info.is_none(), got_cloud.is_none(), got_decoded.is_none()].iter().any(|&b| b)
         || got_holes.is_none()
@@ -146,6 +173,9 @@ fn messages_cross_dds_on_loopback_both_ways() {
         || got_diag.is_none()
         || got_tf.is_none()
         || got_det.is_none()
+        || got_markers.is_none()
+        || got_debug.is_none()
+        || got_jpeg.is_none()
     {
         assert!(started.elapsed() < Duration::from_secs(30), "nothing crossed in 30 s");
         // Discovery takes a moment; until both sides are matched, send again.
@@ -153,7 +183,12 @@ fn messages_cross_dds_on_loopback_both_ways() {
         let _ = compressed_pub.publish(compressed.clone());
         let _ = info_pub.publish(info.clone());
         let _ = cloud_pub.publish(cloud.clone());
-        bridge.publish_poses(&poses, Some(&scores)).expect("poses");
+        bridge.publish_poses(&poses, Some(&scores), Some(&plane)).expect("poses");
+        // As the sidecar does: a debug image only once someone subscribes.
+        let watching = bridge.debug_subscribers();
+        if watching.any() {
+            bridge.publish_debug_image(debug_image.clone(), watching).expect("debug image");
+        }
         let array = outlet_ros2_bridge::convert::diagnostics_of(&[beat], beat.published_ns, 3_000_000_000, "test");
         bridge.publish_diagnostics(array).expect("diagnostics");
         let wait = Instant::now();
@@ -171,6 +206,9 @@ fn messages_cross_dds_on_loopback_both_ways() {
             got_diag = got_diag.or(diag_sub.take().ok().flatten().map(|(m, _)| m));
             got_tf = got_tf.or(tf_sub.take().ok().flatten().map(|(m, _)| m));
             got_det = got_det.or(det_sub.take().ok().flatten().map(|(m, _)| m));
+            got_markers = got_markers.or(marker_sub.take().ok().flatten().map(|(m, _)| m));
+            got_debug = got_debug.or(debug_sub.take().ok().flatten().map(|(m, _)| m));
+            got_jpeg = got_jpeg.or(debug_jpeg_sub.take().ok().flatten().map(|(m, _)| m));
         }
     }
     assert_eq!(got_image.as_ref(), Some(&image), "a 900 kB image crosses whole");
@@ -205,6 +243,69 @@ fn messages_cross_dds_on_loopback_both_ways() {
     let c = &det.detections[1].results[0].pose.covariance;
     assert_eq!([c[0], c[1], c[7], c[14], c[21]], [4e-8, 1e-9, 4e-8, 9e-8, 1e6]);
 
+    // The markers: a sphere at each published hole position, the plate, the wall.
+    let m = got_markers.expect("markers");
+    assert_eq!(m.markers[0].action, Marker::DELETEALL);
+    let spheres: Vec<&Marker> = m.markers.iter().filter(|m| m.ns == markers::HOLES_NS).collect();
+    assert_eq!(spheres.len(), 2);
+    for (sphere, pose) in spheres.iter().zip(&holes.poses) {
+        assert_eq!(sphere.type_, Marker::SPHERE);
+        assert_eq!(sphere.pose.position, pose.position);
+        assert_eq!(sphere.header, holes.header);
+    }
+    // Hole 1's covariance: sigmas 0.2 (x, y) and 0.3 mm (z) about, 3 sigma each way.
+    let mut d = [spheres[1].scale.x, spheres[1].scale.y, spheres[1].scale.z];
+    d.sort_by(f64::total_cmp);
+    assert!((d[2] - 6.0 * 9e-8f64.sqrt()).abs() < 1e-9, "{d:?}");
+    assert_eq!(spheres[0].color, markers::kind_color(outlet_protocol::HoleKind::Power));
+    assert_eq!(spheres[1].color, markers::kind_color(outlet_protocol::HoleKind::Ground));
+    assert!(m.markers.iter().any(|m| m.ns == markers::PLATE_NS && m.type_ == Marker::CUBE));
+    let wall = m.markers.iter().find(|m| m.ns == markers::WALL_NS).expect("the wall");
+    assert_eq!(wall.pose.position.z, 0.505);
+
+    // The debug image, exactly as drawn, and its JPEG.
+    let debug = got_debug.expect("debug image");
+    assert_eq!((debug.width, debug.height, debug.encoding.as_str(), debug.step), (640, 480, "rgb8", 1920));
+    assert_eq!(debug.header, holes.header, "the frame's capture time, the camera frame");
+    assert_eq!(debug.data, debug_image.rgb.as_raw().clone());
+    let jpeg = got_jpeg.expect("compressed debug image");
+    assert_eq!(jpeg.header, holes.header);
+    let decoded = outlet_ros2_bridge::convert::image_of_compressed(&jpeg).expect("a JPEG");
+    assert_eq!((decoded.width, decoded.height), (640, 480));
+
     stop_handle.stop();
     runner.join().expect("the inputs thread ends on stop");
+}
+
+/// The debug image of `poses`' frame: a grey 640x480 frame, a detection of
+/// its two holes at their pixels, joined and drawn as the sidecar does.
+fn debug_image_of(poses: &HolePosesMsg) -> DebugImage {
+    let camera = CameraModel::new(640, 480, [525.0, 525.0, 319.5, 239.5], [0.0; 5]).expect("camera");
+    let header = FrameHeader::new(poses.frame_id, poses.capture_time_ns, PixelFormat::Rgb8, &camera);
+    let mut debug = DebugImages::default();
+    debug.add_frame(&header, &vec![90; 640 * 480 * 3]).expect("frame");
+    let mut holes = [HoleMsg::default(); MAX_HOLES];
+    for (k, hole) in holes.iter_mut().enumerate().take(2) {
+        let [x, y, z] = poses.positions_m[k];
+        let pixel = camera.project(&nalgebra::Point3::new(x, y, z)).expect("in front");
+        *hole = HoleMsg { kind: poses.kinds[k], refined: 1, pixel: [pixel.x, pixel.y], score: 0.9, sigma_px: 0.3 };
+    }
+    let detection = DetectionMsg {
+        schema_version: SCHEMA_VERSION,
+        hole_count: 2,
+        frame_id: poses.frame_id,
+        capture_time_ns: poses.capture_time_ns,
+        score: 2,
+        reserved: 0,
+        detect_ms: 1.0,
+        width: 640,
+        height: 480,
+        intrinsics: [camera.fx, camera.fy, camera.cx, camera.cy],
+        distortion: camera.distortion,
+        holes,
+    };
+    assert!(debug.detection(&detection).is_empty(), "it waits for the poses");
+    let image = debug.poses(poses).expect("joined");
+    assert_ne!(image.rgb.as_raw(), &vec![90; 640 * 480 * 3], "something is drawn");
+    image
 }

@@ -12,9 +12,19 @@
 //!   `geometry_msgs/PoseStamped`, a `tf2_msgs/TFMessage` and a
 //!   `vision_msgs/Detection3DArray`, whose scores come from the same frame's
 //!   [`service::DETECTIONS`] message (read, with no notification, before each
-//!   pose); at each heartbeat tick the services'
-//!   heartbeats ([`service::HEARTBEAT`], which carry no notification) become one
-//!   `diagnostic_msgs/DiagnosticArray`.
+//!   pose), and a `visualization_msgs/MarkerArray` with the wall plane
+//!   ([`service::PLANES`], the one closest in time within the pose service's
+//!   `max_plane_age_ms`, read with no notification before each pose); at each
+//!   heartbeat tick the services' heartbeats ([`service::HEARTBEAT`], which
+//!   carry no notification) become one `diagnostic_msgs/DiagnosticArray`.
+//! - The debug image, only while a ROS 2 reader subscribes to it (asked of DDS
+//!   discovery at most every half second): the frames ([`service::FRAMES`],
+//!   whatever their source) are copied as they are read, at each detection
+//!   ([`service::DETECTIONS`], whose notification wakes the bridge), and each
+//!   is drawn with its detection and hole poses
+//!   ([`outlet_ros2_bridge::debug_image::DebugImages`]). With no such reader
+//!   no frame is read and nothing is drawn or encoded: a detection's
+//!   notification costs a wake-up.
 //!
 //! The heartbeat ("ros2-bridge") counts every ROS 2 message and hole-pose
 //! message in as an input, every frame, cloud and pose pair out as an output, and
@@ -31,10 +41,14 @@ use iceoryx2::prelude::*;
 use outlet::health::{Health, now_ns};
 use outlet_protocol::CameraModel;
 use outlet_protocol::shm;
-use outlet_protocol::wire::{CloudHeader, DetectionMsg, FrameHeader, HolePosesMsg, SCHEMA_VERSION, service};
+use outlet_protocol::wire::{
+    CloudHeader, DetectionMsg, FrameHeader, HolePosesMsg, SCHEMA_VERSION, WallPlaneMsg, service,
+};
 use outlet_ros2_bridge::convert::{self, Diagnostics};
+use outlet_ros2_bridge::debug_image::{DebugImage, DebugImages};
+use outlet_ros2_bridge::markers::RecentPlanes;
 use outlet_ros2_bridge::perception::HoleScores;
-use outlet_ros2_bridge::{Bridge, BridgeError, Input, Inputs, Stop};
+use outlet_ros2_bridge::{Bridge, BridgeError, DebugSubscribers, Input, Inputs, Stop};
 use std::sync::{Arc, Mutex, MutexGuard, mpsc};
 use std::time::Instant;
 
@@ -49,6 +63,15 @@ fn lock(health: &Mutex<Health>) -> MutexGuard<'_, Health> {
 fn reject(health: &Mutex<Health>, reason: &str) {
     lock(health).rejected(reason);
     tracing::warn!("rejected: {reason}");
+}
+
+/// A debug image out; one that cannot go (a reader too slow to take it) is
+/// only logged: it is a view, the results went out already.
+fn publish_debug(bridge: &Bridge, image: DebugImage, to: DebugSubscribers) {
+    let frame_id = image.frame_id;
+    if let Err(e) = bridge.publish_debug_image(image, to) {
+        tracing::debug!("debug image of frame {frame_id} not sent: {e}");
+    }
 }
 
 /// Runs `f` with the asynchronous signals blocked on this thread, so that the
@@ -114,12 +137,23 @@ pub fn run(rt: &Runtime) -> Result<()> {
         .create()
         .map_err(|e| anyhow::anyhow!("detection subscriber: {e:?}"))?;
     let mut scores = HoleScores::default();
+    let detection_listener = rt.listener(service::DETECTIONS)?;
+    let plane_sub = shm::messages::<WallPlaneMsg>(&rt.node, service::PLANES)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| anyhow::anyhow!("plane subscriber: {e:?}"))?;
+    let mut planes = RecentPlanes::default();
+    let max_plane_age_ms = rt.config.pose.max_plane_age_ms;
+    let frame_sub =
+        shm::frames(&rt.node)?.subscriber_builder().create().map_err(|e| anyhow::anyhow!("frame subscriber: {e:?}"))?;
+    let mut debug = DebugImages::default();
     let beat_sub = shm::heartbeats(&rt.node)?
         .subscriber_builder()
         .create()
         .map_err(|e| anyhow::anyhow!("heartbeat subscriber: {e:?}"))?;
     let waitset = rt.waitset()?;
     let poses = waitset.attach_notification(&pose_listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
+    let detections = waitset.attach_notification(&detection_listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
     let tick = waitset.attach_interval(rt.heartbeat_period()).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
     // Silent as `outlet status` has it: three periods and half a second.
     let silent_after_ns = (3 * rt.config.heartbeat_ms + 500) * 1_000_000;
@@ -127,7 +161,8 @@ pub fn run(rt: &Runtime) -> Result<()> {
     let mut input_thread_ended = false;
     let topics = &config.topics;
     tracing::info!(
-        "ros2-bridge ready: {} + {} -> {}, {} -> {}; {} -> {} + {} + {} + {}; heartbeats -> {}",
+        "ros2-bridge ready: {} + {} -> {}, {} -> {}; {} -> {} + {} + {} + {} + {}; heartbeats -> {}; \
+         debug image (while subscribed) -> {} + {}",
         topics.image,
         topics.camera_info,
         service::FRAMES,
@@ -138,9 +173,17 @@ pub fn run(rt: &Runtime) -> Result<()> {
         topics.pose,
         topics.detections,
         topics.tf,
-        topics.diagnostics
+        topics.markers,
+        topics.diagnostics,
+        topics.debug_image,
+        topics.debug_image_compressed
     );
     let on_event = |id: WaitSetAttachmentId<ipc::Service>| {
+        // Who watches the debug image (DDS discovery, asked at most every half second).
+        let watching = bridge.debug_subscribers();
+        if !watching.any() && !debug.is_empty() {
+            debug.clear();
+        }
         if id.has_event_from(&tick) {
             rt.beat(&mut lock(&health));
             loop {
@@ -158,20 +201,65 @@ pub fn run(rt: &Runtime) -> Result<()> {
             {
                 tracing::warn!("{e}");
             }
+            // A detection whose poses did not come in a whole period goes without.
+            if watching.any()
+                && let Some(image) = debug.tick()
+            {
+                publish_debug(&bridge, image, watching);
+            }
             if input_thread.is_finished() {
                 input_thread_ended = true;
                 return CallbackProgression::Stop;
             }
         }
-        if id.has_event_from(&poses) {
-            clear(&pose_listener);
-            // The detections of the poses about to be read came before them.
+        if id.has_event_from(&detections) {
+            clear(&detection_listener);
+        }
+        // The detections of the poses about to be read came before them; with
+        // someone watching, each also meets its frame (which came before it).
+        if id.has_event_from(&poses) || (id.has_event_from(&detections) && watching.any()) {
+            if watching.any() {
+                loop {
+                    match frame_sub.receive() {
+                        Ok(Some(f)) => {
+                            if let Err(r) = debug.add_frame(f.user_header(), f.payload()) {
+                                tracing::debug!("debug image: frame {}: {r}", f.user_header().frame_id);
+                            }
+                        }
+                        Ok(None) => break,
+                        Err(e) => {
+                            tracing::warn!("receiving frames: {e:?}");
+                            break;
+                        }
+                    }
+                }
+            }
             loop {
                 match detection_sub.receive() {
-                    Ok(Some(d)) => scores.insert(d.payload()),
+                    Ok(Some(d)) => {
+                        scores.insert(d.payload());
+                        if watching.any() {
+                            for image in debug.detection(d.payload()) {
+                                publish_debug(&bridge, image, watching);
+                            }
+                        }
+                    }
                     Ok(None) => break,
                     Err(e) => {
                         tracing::warn!("receiving detections: {e:?}");
+                        break;
+                    }
+                }
+            }
+        }
+        if id.has_event_from(&poses) {
+            clear(&pose_listener);
+            loop {
+                match plane_sub.receive() {
+                    Ok(Some(p)) => planes.insert(*p.payload()),
+                    Ok(None) => break,
+                    Err(e) => {
+                        tracing::warn!("receiving wall planes: {e:?}");
                         break;
                     }
                 }
@@ -192,11 +280,17 @@ pub fn run(rt: &Runtime) -> Result<()> {
                 if hole_scores.is_none() && msg.hole_count > 0 {
                     tracing::debug!("frame {}: its detection was not seen; the detections' scores are 0", msg.frame_id);
                 }
-                match bridge.publish_poses(msg, hole_scores) {
+                let plane = planes.nearest(msg.capture_time_ns, max_plane_age_ms);
+                match bridge.publish_poses(msg, hole_scores, plane) {
                     // No latency sample: the heartbeat's latency is the inbound one.
                     Ok(()) => lock(&health).output(0, started.elapsed().as_secs_f64() * 1e3),
                     Err(BridgeError::Rejected(r)) => reject(&health, &r.to_string()),
                     Err(e) => tracing::warn!("{e}"),
+                }
+                if watching.any()
+                    && let Some(image) = debug.poses(msg)
+                {
+                    publish_debug(&bridge, image, watching);
                 }
             }
         }
