@@ -26,7 +26,16 @@ pub mod service {
     pub const CONFIG: &str = "outlet/config";
     /// The simulated camera's ground truth: [`super::TruthMsg`].
     pub const TRUTH: &str = "outlet/sim/truth";
+    /// Which file each frame of `outlet serve files` came from, and the files
+    /// it skipped: [`super::FileFrameMsg`].
+    pub const FILES: &str = "outlet/files/frames";
 }
+
+/// The largest frame a frame source publishes, pixel bytes (64 MiB: a
+/// 22-megapixel RGB image). Every reader's share of a frame service holds
+/// several frames of the largest size sent, in shared memory; `outlet serve
+/// files` reports and skips a larger image before decoding it.
+pub const MAX_FRAME_BYTES: usize = 64 << 20;
 
 /// Holes a message carries at most (a 2x2 has 12).
 pub const MAX_HOLES: usize = 24;
@@ -421,6 +430,72 @@ pub struct TruthMsg {
     pub translation_m: [f64; 3],
 }
 
+/// [`FileFrameMsg::status`] codes.
+pub mod file_status {
+    /// The file went out as frame `frame_id` (with its cloud, if any).
+    pub const SENT: u32 = 1;
+    /// The file could not be sent (`reason` says why) and is skipped.
+    pub const SKIPPED: u32 = 2;
+    /// Every file has been through once and no more will come (no `--loop`).
+    pub const END: u32 = 3;
+}
+
+/// What `outlet serve files` did with one file of its list, published after
+/// the frame: the frame's file for whoever wants to name it (`outlet demo
+/// --images`), a skipped file and why, or the end of the list. The pipeline's
+/// services never read it: to them the frames are a camera's.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("outlet::FileFrameMsg")]
+pub struct FileFrameMsg {
+    pub schema_version: u32,
+    /// [`file_status`].
+    pub status: u32,
+    /// The file's place in the sorted list (from 0) and the pass through it
+    /// (from 0; more than one with `--loop`).
+    pub index: u32,
+    pub pass: u32,
+    /// Files in the list.
+    pub files: u32,
+    pub reserved: u32,
+    /// The frame the file went out as; 0 when it did not.
+    pub frame_id: u64,
+    pub capture_time_ns: u64,
+    /// The image's path, NUL-padded UTF-8 (cut at 1024 bytes).
+    pub image: [u8; 1024],
+    /// Why it was skipped, NUL-padded.
+    pub reason: [u8; 256],
+}
+
+impl FileFrameMsg {
+    pub fn new(status: u32, index: u32, pass: u32, files: u32, image: &str) -> Self {
+        Self {
+            schema_version: SCHEMA_VERSION,
+            status,
+            index,
+            pass,
+            files,
+            reserved: 0,
+            frame_id: 0,
+            capture_time_ns: 0,
+            image: text(image),
+            reason: [0; 256],
+        }
+    }
+
+    pub fn image(&self) -> &str {
+        text_str(&self.image)
+    }
+
+    pub fn reason(&self) -> &str {
+        text_str(&self.reason)
+    }
+
+    pub fn set_reason(&mut self, reason: &str) {
+        self.reason = text(reason);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -462,5 +537,14 @@ mod tests {
         h.set_last_rejection(&long);
         assert_eq!(h.last_rejection(), "é".repeat(60));
         assert_eq!(HeartbeatMsg::new("a-very-long-service-name", 1, 0).service_name(), "a-very-long-serv");
+    }
+
+    #[test]
+    fn a_file_frame_names_its_image_and_why_it_was_skipped() {
+        let mut m = FileFrameMsg::new(file_status::SKIPPED, 3, 0, 9, "/photos/bad.png");
+        m.set_reason("not a PNG");
+        assert_eq!((m.image(), m.reason(), m.status, m.index, m.files), ("/photos/bad.png", "not a PNG", 2, 3, 9));
+        let long = format!("/{}", "ü".repeat(600));
+        assert_eq!(FileFrameMsg::new(file_status::SENT, 0, 0, 1, &long).image().len(), 1023);
     }
 }

@@ -1,7 +1,9 @@
 //! `outlet demo`: the whole sidecar on the simulated camera. Starts `serve
 //! sim-camera`, `detector`, `normal` and `pose` as child processes, follows the
 //! hole poses through the client library, and prints each result beside the
-//! ground truth. Ctrl-C (or `--duration`) stops the children cleanly.
+//! ground truth. Ctrl-C (or `--duration`) stops the children cleanly. With
+//! `--images`, photographs take the simulated camera's place
+//! ([`crate::demo_photos`]).
 
 use crate::serve::SimCameraArgs;
 use anyhow::{Context, Result, bail};
@@ -14,7 +16,7 @@ use outlet_protocol::shm;
 use outlet_protocol::wire::{DetectionMsg, TruthMsg, service};
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -50,6 +52,24 @@ pub struct DemoArgs {
     pub soak_period_s: f64,
     #[command(flatten)]
     pub sim: SimCameraArgs,
+    /// Photographs instead of the simulated camera (`outlet serve files`): glob patterns
+    /// (quoted: 'DIR/*.png'), files or folders of PNG and JPEG. Each frame's holes, pixel
+    /// and 3D, are printed (there is no truth to score them against); photos are searched
+    /// whole, as `outlet detect` does, and each pose uses its own photo's cloud only.
+    /// `--rate` sets the frames per second (default 10); the demo ends after the last file.
+    #[arg(long, num_args = 1.., conflicts_with_all = ["scenario", "seed", "width", "height", "views",
+        "frames_per_scene", "no_cloud", "soak_report"])]
+    pub images: Vec<String>,
+    /// With --images: the camera_info YAML of every photo (default: each one's
+    /// NAME.camera.yaml, else camera.yaml beside it).
+    #[arg(long, requires = "images")]
+    pub camera: Option<PathBuf>,
+    /// With --images: stereo clouds (PLY), matched to the photos by file stem.
+    #[arg(long, num_args = 1.., requires = "images")]
+    pub points: Vec<String>,
+    /// With --images: go through the photos again and again, until --duration or Ctrl-C.
+    #[arg(long = "loop", requires = "images")]
+    pub repeat: bool,
 }
 
 /// A hole further than this from the truth makes its result a false alarm (mm).
@@ -98,10 +118,36 @@ struct HoleLine {
 }
 
 /// The child processes; stopped with SIGTERM (then SIGKILL) however the demo ends.
-struct Children(Vec<(&'static str, Child)>);
+pub(crate) struct Children(pub(crate) Vec<(&'static str, Child)>);
 
 impl Children {
-    fn stop(&mut self) {
+    /// Starts `outlet serve --config CONFIG NAME ARGS`, its log in `logs/NAME.log`.
+    pub(crate) fn start(
+        &mut self,
+        name: &'static str,
+        config_path: &Path,
+        logs: &Path,
+        args: &[std::ffi::OsString],
+    ) -> Result<()> {
+        let exe = std::env::current_exe().context("locating the outlet executable")?;
+        let log = std::fs::File::create(logs.join(format!("{name}.log")))
+            .with_context(|| format!("creating the log of {name}"))?;
+        let child = Command::new(&exe)
+            .arg("serve")
+            .arg("--config")
+            .arg(config_path)
+            .arg(name)
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .with_context(|| format!("starting {name}"))?;
+        self.0.push((name, child));
+        Ok(())
+    }
+
+    pub(crate) fn stop(&mut self) {
         for (_, c) in &self.0 {
             if let Ok(pid) = i32::try_from(c.id()) {
                 let _ = kill(Pid::from_raw(pid), Signal::SIGTERM);
@@ -126,7 +172,7 @@ impl Children {
     }
 
     /// The first child that has exited, with its status.
-    fn exited(&mut self) -> Option<String> {
+    pub(crate) fn exited(&mut self) -> Option<String> {
         self.0.iter_mut().find_map(|(name, c)| match c.try_wait() {
             Ok(Some(status)) => Some(format!("{name} exited ({status})")),
             _ => None,
@@ -144,7 +190,8 @@ fn ns(t: SystemTime) -> u64 {
     t.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64)
 }
 
-pub fn demo(args: DemoArgs) -> Result<()> {
+/// The demo's configuration: the file's, in the demo's own domain unless told otherwise.
+pub(crate) fn demo_config(args: &DemoArgs) -> Result<Config> {
     let mut config = Config::load(args.config.as_deref())?;
     // Apart from any running sidecar unless told otherwise.
     if let Some(d) = &args.domain {
@@ -152,6 +199,28 @@ pub fn demo(args: DemoArgs) -> Result<()> {
     } else if args.config.is_none() {
         config.domain = format!("demo-{}", std::process::id());
     }
+    if let Some(d) = args.duration
+        && !(d > 0.0 && d.is_finite())
+    {
+        bail!("--duration {d}: not a positive number of seconds");
+    }
+    Ok(config)
+}
+
+/// Writes the configuration the services read into the demo's log folder: the folder and the file.
+pub(crate) fn write_config(args: &DemoArgs, config: &Config) -> Result<(PathBuf, PathBuf)> {
+    let logs = args.logs.clone().unwrap_or_else(|| std::env::temp_dir().join(format!("outlet-{}", config.domain)));
+    std::fs::create_dir_all(&logs).with_context(|| format!("creating {}", logs.display()))?;
+    let config_path = logs.join("config.toml");
+    std::fs::write(&config_path, config.to_toml()?).with_context(|| format!("writing {}", config_path.display()))?;
+    Ok((logs, config_path))
+}
+
+pub fn demo(args: DemoArgs) -> Result<()> {
+    if !args.images.is_empty() {
+        return crate::demo_photos::demo(&args);
+    }
+    let mut config = demo_config(&args)?;
     args.sim.apply(&mut config);
     let template = args
         .template
@@ -163,16 +232,7 @@ pub fn demo(args: DemoArgs) -> Result<()> {
     }
     config.pose.template = template;
     config.check().context("configuration")?;
-    if let Some(d) = args.duration
-        && !(d > 0.0 && d.is_finite())
-    {
-        bail!("--duration {d}: not a positive number of seconds");
-    }
-
-    let logs = args.logs.clone().unwrap_or_else(|| std::env::temp_dir().join(format!("outlet-{}", config.domain)));
-    std::fs::create_dir_all(&logs).with_context(|| format!("creating {}", logs.display()))?;
-    let config_path = logs.join("config.toml");
-    std::fs::write(&config_path, config.to_toml()?).with_context(|| format!("writing {}", config_path.display()))?;
+    let (logs, config_path) = write_config(&args, &config)?;
 
     // Subscribe before the services start, so that no result is missed.
     let node = shm::node(&config.domain, "demo")?;
@@ -186,22 +246,9 @@ pub fn demo(args: DemoArgs) -> Result<()> {
         .create()
         .map_err(|e| anyhow::anyhow!("detection subscriber: {e:?}"))?;
 
-    let exe = std::env::current_exe().context("locating the outlet executable")?;
     let mut children = Children(Vec::new());
     for name in ["normal", "pose", "detector", "sim-camera"] {
-        let log = std::fs::File::create(logs.join(format!("{name}.log")))
-            .with_context(|| format!("creating the log of {name}"))?;
-        let child = Command::new(&exe)
-            .arg("serve")
-            .arg("--config")
-            .arg(&config_path)
-            .arg(name)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(log)
-            .spawn()
-            .with_context(|| format!("starting {name}"))?;
-        children.0.push((name, child));
+        children.start(name, &config_path, &logs, &[])?;
     }
     let sim = &config.sim_camera;
     eprintln!(

@@ -2,6 +2,7 @@
 
 mod approach_cmd;
 mod demo;
+mod demo_photos;
 mod detect_cmd;
 mod eval_cmd;
 mod font;
@@ -42,7 +43,7 @@ enum Command {
     Record(record::RecordArgs),
     /// Play an MCAP recording (ours, or a ROS 2 bag of a camera) into shared memory with its original timing.
     Replay(record::ReplayArgs),
-    /// The whole sidecar on the simulated camera: each result with its error and latency.
+    /// The whole sidecar on the simulated camera (each result with its error and latency), or on photographs.
     Demo(demo::DemoArgs),
     /// A live view of the running services: channel rates, latencies, rejected inputs.
     Status(status::StatusArgs),

@@ -3,7 +3,9 @@
 //! (no polling) and keeps serving whatever arrives: a bad input is counted,
 //! logged and dropped. SIGINT or SIGTERM ends a service cleanly.
 
+mod camera_out;
 mod detector;
+mod files;
 mod normal;
 mod pose;
 mod ros2_bridge;
@@ -62,6 +64,8 @@ pub enum Service {
     },
     /// The renderer as a camera: frames and stereo clouds at a rate, the truth on a side channel.
     SimCamera(SimCameraArgs),
+    /// Photographs as a camera: PNG or JPEG files (and stereo clouds) at a rate, in sorted order.
+    Files(files::FilesArgs),
     /// The ROS 2 bridge: images, camera info and clouds in from ROS 2, hole poses and diagnostics out.
     Ros2Bridge {
         /// The DDS domain id, ROS_DOMAIN_ID (`ros2.domain_id`).
@@ -162,6 +166,7 @@ pub fn serve(args: ServeArgs) -> Result<()> {
             sim.apply(&mut config);
             "sim-camera"
         }
+        Service::Files(_) => "files",
         Service::Ros2Bridge { ros_domain_id, interfaces } => {
             if let Some(d) = ros_domain_id {
                 config.ros2.domain_id = *d;
@@ -180,6 +185,7 @@ pub fn serve(args: ServeArgs) -> Result<()> {
         Service::Detector { .. } => detector::run(&runtime),
         Service::Pose { .. } => pose::run(&runtime),
         Service::SimCamera(_) => sim_camera::run(&runtime),
+        Service::Files(files) => files::run(&runtime, &files),
         Service::Ros2Bridge { .. } => ros2_bridge::run(&runtime),
     };
     // The node goes first; the last service of the domain to stop leaves

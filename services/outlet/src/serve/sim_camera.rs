@@ -4,12 +4,13 @@
 //! Each scene of the scenario is seen for `frames_per_scene` frames by a camera
 //! approaching it, then the next (or one of `views` rendered once, in turn).
 
-use super::{Output, Runtime, notifier};
+use super::camera_out::CameraOutput;
+use super::{Output, Runtime};
 use anyhow::Result;
 use iceoryx2::prelude::*;
-use outlet::health::{Health, now_ns};
-use outlet_protocol::wire::{CloudHeader, FrameHeader, MAX_HOLES, PixelFormat, SCHEMA_VERSION, TruthMsg, service};
-use outlet_protocol::{CameraModel, shm};
+use outlet::health::Health;
+use outlet_protocol::CameraModel;
+use outlet_protocol::wire::{MAX_HOLES, PixelFormat, SCHEMA_VERSION, TruthMsg, service};
 use outlet_sim::RenderedFrame;
 use std::time::{Duration, Instant};
 
@@ -82,20 +83,7 @@ pub fn run(rt: &Runtime) -> Result<()> {
     let config = &rt.config.sim_camera;
     let camera = camera(config.width, config.height)?;
     let frame_bytes = (camera.width * camera.height * 3) as usize;
-    let frames = shm::frames(&rt.node)?
-        .publisher_builder()
-        .initial_max_slice_len(frame_bytes)
-        .allocation_strategy(AllocationStrategy::PowerOfTwo)
-        .create()
-        .map_err(|e| anyhow::anyhow!("frame publisher: {e:?}"))?;
-    let clouds = shm::clouds(&rt.node)?
-        .publisher_builder()
-        .initial_max_slice_len((camera.width * camera.height * 3) as usize)
-        .allocation_strategy(AllocationStrategy::PowerOfTwo)
-        .create()
-        .map_err(|e| anyhow::anyhow!("cloud publisher: {e:?}"))?;
-    let frame_note = notifier(rt, service::FRAMES)?;
-    let cloud_note = notifier(rt, service::CLOUDS)?;
+    let output = CameraOutput::open(rt, frame_bytes, frame_bytes)?;
     let truth = Output::<TruthMsg>::open(rt, service::TRUTH)?;
 
     let replay: Vec<RenderedFrame> = (0..config.views as u64).filter_map(|i| render(config, &camera, i)).collect();
@@ -137,41 +125,13 @@ pub fn run(rt: &Runtime) -> Result<()> {
                 &replay[((frame_id - 1) % replay.len() as u64) as usize]
             };
             let render_ms = started.elapsed().as_secs_f64() * 1e3;
-            // The frame first. Its stamp is the moment it is handed over, once the
-            // pixels are in shared memory: rendering and the copy stand for
-            // exposure and readout. The cloud carries the same stamp.
-            let pixels = frame.frame.image.as_raw();
-            let mut stamp = 0;
-            let mut sent = (|| {
-                let f = frames.loan_slice_uninit(pixels.len()).map_err(|e| format!("frame: {e:?}"))?;
-                let mut f = f.write_from_slice(pixels);
-                stamp = now_ns();
-                *f.user_header_mut() = FrameHeader::new(frame_id, stamp, PixelFormat::Rgb8, &camera);
-                f.send().map_err(|e| format!("frame: {e:?}"))?;
-                let _ = frame_note.notify();
-                Ok::<(), String>(())
-            })();
-            if config.cloud && sent.is_ok() {
-                let values: Vec<f32> = frame.cloud.iter().flatten().copied().collect();
-                sent = clouds
-                    .loan_slice_uninit(values.len())
-                    .map_err(|e| format!("cloud: {e:?}"))
-                    .and_then(|mut c| {
-                        *c.user_header_mut() = CloudHeader {
-                            schema_version: SCHEMA_VERSION,
-                            reserved: 0,
-                            frame_id,
-                            capture_time_ns: stamp,
-                            points: frame.cloud.len() as u64,
-                        };
-                        c.write_from_slice(&values).send().map_err(|e| format!("cloud: {e:?}"))
-                    })
-                    .map(|_| {
-                        let _ = cloud_note.notify();
-                    });
-            }
+            // The frame first, then its cloud, both with the frame's stamp: the
+            // moment it is handed over, once the pixels are in shared memory
+            // (rendering and the copy stand for exposure and readout).
+            let cloud = config.cloud.then_some(frame.cloud.as_slice());
+            let sent = output.send(frame_id, &camera, PixelFormat::Rgb8, frame.frame.image.as_raw(), cloud);
             match sent {
-                Ok(()) => {
+                Ok(stamp) => {
                     truth.send(truth_msg(frame, frame_id, stamp));
                     health.output(stamp, render_ms);
                 }
