@@ -235,6 +235,29 @@ pub fn subscription<M: RosMessage>(
     node.create_subscription(&t, Some(qos.clone())).map_err(|e| dds(format!("subscription to {topic}"), e))
 }
 
+/// The debug images' publishers ([`Bridge::take_debug_publisher`]).
+pub struct DebugPublisher {
+    image: Publisher<Image>,
+    compressed: Publisher<CompressedImage>,
+    frame_id: String,
+}
+
+impl DebugPublisher {
+    /// Publishes a debug image on the topics `to` names: the rgb8 Image, a
+    /// JPEG CompressedImage (encoded here, the cost: 8 to 20 ms a VGA frame),
+    /// or both.
+    pub fn publish(&self, image: DebugImage, to: DebugSubscribers) -> Result<(), BridgeError> {
+        if to.compressed {
+            let jpeg = image.to_jpeg(&self.frame_id, JPEG_QUALITY).map_err(|e| dds("encoding the debug image", e))?;
+            self.compressed.publish(jpeg).map_err(|e| dds("publishing the compressed debug image", e))?;
+        }
+        if to.image {
+            self.image.publish(image.into_image(&self.frame_id)).map_err(|e| dds("publishing the debug image", e))?;
+        }
+        Ok(())
+    }
+}
+
 /// What came in from ROS 2.
 #[derive(Debug)]
 pub enum Input {
@@ -328,8 +351,10 @@ impl Inputs {
 }
 
 /// The bridge's ROS 2 node: its inputs (taken once, to run on their own
-/// thread) and its publishers. To end, stop the inputs, then drop the bridge
-/// (the DDS participant goes last, after every reader and writer).
+/// thread), its publishers, and the debug images' publishers (taken once, to
+/// run on another thread). To end, stop the inputs and drop the debug
+/// publisher, then drop the bridge (the DDS participant goes last, after
+/// every reader and writer).
 ///
 /// The node runs no ros2-client spinner: the bridge needs none of what it
 /// serves (parameters, simulated time, graph events). The node is still
@@ -342,8 +367,7 @@ pub struct Bridge {
     tf: Publisher<TFMessage>,
     diagnostics: Publisher<DiagnosticArray>,
     markers: Publisher<MarkerArray>,
-    debug_image: Publisher<Image>,
-    debug_compressed: Publisher<CompressedImage>,
+    debug: Option<DebugPublisher>,
     debug_topics: [DdsTopic; 2],
     /// The last answer of [`Bridge::debug_subscribers`] and when it was asked.
     debug_subscribers: Mutex<Option<(Instant, DebugSubscribers)>>,
@@ -379,8 +403,11 @@ impl Bridge {
             tf: publisher(&mut node, &topics.tf, &TF_QOS)?,
             diagnostics: publisher(&mut node, &topics.diagnostics, &RESULT_QOS)?,
             markers: publisher(&mut node, &topics.markers, &RESULT_QOS)?,
-            debug_image,
-            debug_compressed,
+            debug: Some(DebugPublisher {
+                image: debug_image,
+                compressed: debug_compressed,
+                frame_id: config.frame_id.clone(),
+            }),
             debug_topics: [image_topic, compressed_topic],
             debug_subscribers: Mutex::new(None),
             inputs: Some(inputs),
@@ -449,19 +476,17 @@ impl Bridge {
         answer
     }
 
-    /// Publishes a debug image on the topics `to` names: the rgb8 Image, a
-    /// JPEG CompressedImage (encoded here), or both.
+    /// The debug images' publishers, once: to publish (and encode) them on a
+    /// thread of their own. Drop it before the bridge.
+    pub fn take_debug_publisher(&mut self) -> Option<DebugPublisher> {
+        self.debug.take()
+    }
+
+    /// Publishes a debug image on this thread ([`DebugPublisher::publish`]),
+    /// unless the debug publisher was taken.
     pub fn publish_debug_image(&self, image: DebugImage, to: DebugSubscribers) -> Result<(), BridgeError> {
-        if to.compressed {
-            let jpeg = image.to_jpeg(&self.frame_id, JPEG_QUALITY).map_err(|e| dds("encoding the debug image", e))?;
-            self.debug_compressed.publish(jpeg).map_err(|e| dds("publishing the compressed debug image", e))?;
-        }
-        if to.image {
-            self.debug_image
-                .publish(image.into_image(&self.frame_id))
-                .map_err(|e| dds("publishing the debug image", e))?;
-        }
-        Ok(())
+        let publisher = self.debug.as_ref().ok_or_else(|| dds("the debug image", "its publisher was taken"))?;
+        publisher.publish(image, to)
     }
 
     pub fn publish_diagnostics(&self, array: DiagnosticArray) -> Result<(), BridgeError> {

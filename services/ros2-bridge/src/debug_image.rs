@@ -124,20 +124,24 @@ pub fn draw(frame: &RgbImage, camera: &CameraModel, d: &DetectionMsg, poses: Opt
         annotate::draw_hole(&mut out, Point2::new(h.pixel[0], h.pixel[1]), kind, hole_radius_px(h.sigma_px));
     }
     let scale = (out.width() / 320).clamp(1, 4);
-    let line = |k: u32| 6 + k * 10 * scale;
+    let mut label = |k: u32, text: &str, colour: Rgb<u8>| {
+        // A dark shadow, so that the label reads on a white wall too.
+        annotate::draw_text(&mut out, text, 6 + scale, 6 + k * 10 * scale + scale, scale, annotate::RING);
+        annotate::draw_text(&mut out, text, 6, 6 + k * 10 * scale, scale, colour);
+    };
     if holes.is_empty() {
-        annotate::draw_text(&mut out, "no outlet", 6, line(0), scale, annotate::NOT_FOUND);
+        label(0, "no outlet", annotate::NOT_FOUND);
     } else {
-        annotate::draw_text(&mut out, &format!("outlet: score {}", d.score), 6, line(0), scale, annotate::CENTRE);
+        label(0, &format!("outlet: score {}", d.score), annotate::CENTRE);
         let (pose, colour) = match poses {
             Some(p) if p.status == pose_status::OK => (format!("pose: {}", mode_name(p.mode)), annotate::CENTRE),
             Some(p) if p.status == pose_status::AMBIGUOUS => ("no pose: ambiguous".into(), annotate::NOT_FOUND),
             Some(_) => ("no pose: plane_mismatch".into(), annotate::NOT_FOUND),
             None => ("no pose".into(), annotate::NOT_FOUND),
         };
-        annotate::draw_text(&mut out, &pose, 6, line(1), scale, colour);
+        label(1, &pose, colour);
     }
-    annotate::draw_text(&mut out, &format!("frame {}", d.frame_id), 6, line(2), scale, Rgb([255, 255, 255]));
+    label(2, &format!("frame {}", d.frame_id), Rgb([255, 255, 255]));
     out
 }
 

@@ -27,7 +27,7 @@ pub mod markers;
 pub mod msgs;
 pub mod perception;
 
-pub use bridge::{Bridge, BridgeError, DebugSubscribers, Input, Inputs, Stop};
+pub use bridge::{Bridge, BridgeError, DebugPublisher, DebugSubscribers, Input, Inputs, Stop};
 pub use convert::Rejection;
 /// The ros2-client this crate is built on, for programs that talk to the bridge.
 pub use ros2_client;

@@ -128,8 +128,8 @@ pub fn kind_color(kind: HoleKind) -> ColorRGBA {
 
 /// The plate's colour: light grey, half transparent.
 pub const PLATE_COLOR: ColorRGBA = ColorRGBA { r: 0.92, g: 0.92, b: 0.88, a: 0.6 };
-/// The wall's colour: grey, mostly transparent.
-pub const WALL_COLOR: ColorRGBA = ColorRGBA { r: 0.6, g: 0.6, b: 0.65, a: 0.3 };
+/// The wall's colour: blue-grey, mostly transparent.
+pub const WALL_COLOR: ColorRGBA = ColorRGBA { r: 0.45, g: 0.55, b: 0.75, a: 0.4 };
 
 fn marker(header: &Header, ns: &str, id: i32, type_: i32, pose: Pose, scale: V3<f64>, color: ColorRGBA) -> Marker {
     Marker {

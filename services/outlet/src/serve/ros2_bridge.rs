@@ -48,7 +48,7 @@ use outlet_ros2_bridge::convert::{self, Diagnostics};
 use outlet_ros2_bridge::debug_image::{DebugImage, DebugImages};
 use outlet_ros2_bridge::markers::RecentPlanes;
 use outlet_ros2_bridge::perception::HoleScores;
-use outlet_ros2_bridge::{Bridge, BridgeError, DebugSubscribers, Input, Inputs, Stop};
+use outlet_ros2_bridge::{Bridge, BridgeError, DebugPublisher, DebugSubscribers, Input, Inputs, Stop};
 use std::sync::{Arc, Mutex, MutexGuard, mpsc};
 use std::time::Instant;
 
@@ -65,12 +65,53 @@ fn reject(health: &Mutex<Health>, reason: &str) {
     tracing::warn!("rejected: {reason}");
 }
 
-/// A debug image out; one that cannot go (a reader too slow to take it) is
-/// only logged: it is a view, the results went out already.
-fn publish_debug(bridge: &Bridge, image: DebugImage, to: DebugSubscribers) {
-    let frame_id = image.frame_id;
-    if let Err(e) = bridge.publish_debug_image(image, to) {
-        tracing::debug!("debug image of frame {frame_id} not sent: {e}");
+/// The debug images waiting for their thread: one. JPEG encoding takes
+/// longer than a frame period at high resolutions; the poses never wait for
+/// it, and a debug image that finds the thread busy is dropped.
+const DEBUG_QUEUE: usize = 1;
+
+/// The debug image thread and its queue. Dropping it ends the thread and
+/// waits for it, so that the debug image's writers go before the bridge's
+/// node (on every way out of [`run`], as it is made after the bridge).
+struct DebugThread {
+    queue: Option<mpsc::SyncSender<(DebugImage, DebugSubscribers)>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl DebugThread {
+    /// Hands a debug image to the thread, or drops it when the thread is busy.
+    fn send(&self, image: DebugImage, to: DebugSubscribers) {
+        let Some(queue) = &self.queue else { return };
+        match queue.try_send((image, to)) {
+            Ok(()) => {}
+            Err(mpsc::TrySendError::Full((image, _))) => {
+                tracing::debug!("debug image of frame {} dropped: the last one is still being sent", image.frame_id)
+            }
+            Err(mpsc::TrySendError::Disconnected(_)) => tracing::warn!("the debug image thread ended"),
+        }
+    }
+}
+
+impl Drop for DebugThread {
+    fn drop(&mut self) {
+        self.queue.take();
+        if let Some(thread) = self.thread.take()
+            && thread.join().is_err()
+        {
+            tracing::warn!("the debug image thread panicked");
+        }
+    }
+}
+
+/// The debug image thread: encodes and publishes each image handed to it
+/// until the queue's sender is dropped. One that cannot go (a reader too slow
+/// to take it) is only logged: it is a view, the results went out already.
+fn run_debug(publisher: DebugPublisher, queue: mpsc::Receiver<(DebugImage, DebugSubscribers)>) {
+    for (image, to) in queue {
+        let frame_id = image.frame_id;
+        if let Err(e) = publisher.publish(image, to) {
+            tracing::debug!("debug image of frame {frame_id} not sent: {e}");
+        }
     }
 }
 
@@ -112,15 +153,22 @@ pub fn run(rt: &Runtime) -> Result<()> {
     let (ready_tx, ready_rx) = mpsc::channel();
     let domain = rt.config.domain.clone();
     let input_health = Arc::clone(&health);
-    let (bridge, input_thread) = with_signals_blocked(|| -> Result<_> {
+    let (debug_tx, debug_rx) = mpsc::sync_channel(DEBUG_QUEUE);
+    let (bridge, input_thread, debug_thread) = with_signals_blocked(|| -> Result<_> {
         let mut bridge = Bridge::new(config).context("the ROS 2 node")?;
         let inputs = bridge.take_inputs().context("the ROS 2 subscriptions")?;
         let input_thread = std::thread::Builder::new()
             .name("ros2-inputs".into())
             .spawn(move || run_inputs(&domain, inputs, stop, &input_health, ready_tx))
             .context("starting the ROS 2 input thread")?;
-        Ok((bridge, input_thread))
+        let debug_publisher = bridge.take_debug_publisher().context("the debug image publishers")?;
+        let debug_thread = std::thread::Builder::new()
+            .name("ros2-debug-image".into())
+            .spawn(move || run_debug(debug_publisher, debug_rx))
+            .context("starting the debug image thread")?;
+        Ok((bridge, input_thread, debug_thread))
     })?;
+    let debug_thread = DebugThread { queue: Some(debug_tx), thread: Some(debug_thread) };
     match ready_rx.recv() {
         Ok(Ok(())) => {}
         Ok(Err(e)) => return Err(e.context("the ROS 2 input thread")),
@@ -205,7 +253,7 @@ pub fn run(rt: &Runtime) -> Result<()> {
             if watching.any()
                 && let Some(image) = debug.tick()
             {
-                publish_debug(&bridge, image, watching);
+                debug_thread.send(image, watching);
             }
             if input_thread.is_finished() {
                 input_thread_ended = true;
@@ -240,7 +288,7 @@ pub fn run(rt: &Runtime) -> Result<()> {
                         scores.insert(d.payload());
                         if watching.any() {
                             for image in debug.detection(d.payload()) {
-                                publish_debug(&bridge, image, watching);
+                                debug_thread.send(image, watching);
                             }
                         }
                     }
@@ -290,16 +338,17 @@ pub fn run(rt: &Runtime) -> Result<()> {
                 if watching.any()
                     && let Some(image) = debug.poses(msg)
                 {
-                    publish_debug(&bridge, image, watching);
+                    debug_thread.send(image, watching);
                 }
             }
         }
         CallbackProgression::Continue
     };
     let waited = waitset.wait_and_process(on_event).map_err(|e| anyhow::anyhow!("waiting: {e:?}"));
-    // The readers first, then the node and its DDS participant.
+    // The readers and the debug image's writers first, then the node and its DDS participant.
     stop_handle.stop();
     let joined = input_thread.join();
+    drop(debug_thread);
     drop(bridge);
     rt.stopped(&lock(&health));
     waited?;
