@@ -22,9 +22,10 @@
 //!   whatever their source) are copied as they are read, at each detection
 //!   ([`service::DETECTIONS`], whose notification wakes the bridge), and each
 //!   is drawn with its detection and hole poses
-//!   ([`outlet_ros2_bridge::debug_image::DebugImages`]). With no such reader
-//!   no frame is read and nothing is drawn or encoded: a detection's
-//!   notification costs a wake-up.
+//!   ([`outlet_ros2_bridge::debug_image::DebugImages`]), then encoded (JPEG)
+//!   and published on a thread of its own, so that the poses never wait for
+//!   it. With no such reader no frame is read and nothing is drawn or
+//!   encoded: a detection's notification costs a wake-up.
 //!
 //! The heartbeat ("ros2-bridge") counts every ROS 2 message and hole-pose
 //! message in as an input, every frame, cloud and pose pair out as an output, and
