@@ -40,6 +40,10 @@ pub struct DemoArgs {
     /// Search every frame whole (`detector.tracking = false`).
     #[arg(long)]
     pub no_tracking: bool,
+    /// Serve the live view on this port (Foxglove: connect to ws://localhost:PORT);
+    /// `--view` alone takes Foxglove's 8765.
+    #[arg(long, num_args = 0..=1, default_missing_value = "8765")]
+    pub view: Option<u16>,
     /// Where the services' logs go (default: a folder in the temp dir).
     #[arg(long)]
     pub logs: Option<PathBuf>,
@@ -249,6 +253,11 @@ pub fn demo(args: DemoArgs) -> Result<()> {
     let mut children = Children(Vec::new());
     for name in ["normal", "pose", "detector", "sim-camera"] {
         children.start(name, &config_path, &logs, &[])?;
+    }
+    if let Some(port) = args.view {
+        let view_args = ["--port".into(), port.to_string().into()];
+        children.start("viewer", &config_path, &logs, &view_args)?;
+        eprintln!("outlet demo: live view on ws://localhost:{port} (open Foxglove, Open connection)");
     }
     let sim = &config.sim_camera;
     eprintln!(

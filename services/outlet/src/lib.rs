@@ -4,6 +4,7 @@
 
 pub mod config;
 pub mod health;
+pub mod live_view;
 pub mod recording;
 pub mod templates;
 

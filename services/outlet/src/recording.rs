@@ -254,7 +254,7 @@ pub fn heartbeat_json(b: &HeartbeatMsg) -> Value {
 }
 
 /// The JSON Schemas of the result channels.
-mod schema {
+pub mod schema {
     use serde_json::{Value, json};
 
     fn numbers(n: usize) -> Value {

@@ -10,6 +10,7 @@ mod normal;
 mod pose;
 mod ros2_bridge;
 mod sim_camera;
+mod viewer;
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
@@ -66,6 +67,16 @@ pub enum Service {
     SimCamera(SimCameraArgs),
     /// Photographs as a camera: PNG or JPEG files (and stereo clouds) at a rate, in sorted order.
     Files(files::FilesArgs),
+    /// The live view: frames, holes, poses, the wall and every service's health on a
+    /// Foxglove WebSocket server (open Foxglove, connect to ws://HOST:PORT).
+    Viewer {
+        /// The address to listen on; 0.0.0.0 lets other machines connect.
+        #[arg(long, default_value = "127.0.0.1")]
+        host: String,
+        /// The port (Foxglove's default 8765; 0: any free one, printed at start).
+        #[arg(long, default_value_t = 8765)]
+        port: u16,
+    },
     /// The ROS 2 bridge: images, camera info and clouds in from ROS 2, hole poses and diagnostics out.
     Ros2Bridge {
         /// The DDS domain id, ROS_DOMAIN_ID (`ros2.domain_id`).
@@ -167,6 +178,7 @@ pub fn serve(args: ServeArgs) -> Result<()> {
             "sim-camera"
         }
         Service::Files(_) => "files",
+        Service::Viewer { .. } => "viewer",
         Service::Ros2Bridge { ros_domain_id, interfaces } => {
             if let Some(d) = ros_domain_id {
                 config.ros2.domain_id = *d;
@@ -186,6 +198,7 @@ pub fn serve(args: ServeArgs) -> Result<()> {
         Service::Pose { .. } => pose::run(&runtime),
         Service::SimCamera(_) => sim_camera::run(&runtime),
         Service::Files(files) => files::run(&runtime, &files),
+        Service::Viewer { host, port } => viewer::run(&runtime, &host, port),
         Service::Ros2Bridge { .. } => ros2_bridge::run(&runtime),
     };
     // The node goes first; the last service of the domain to stop leaves
