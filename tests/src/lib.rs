@@ -1,6 +1,10 @@
 //! Helpers for the tests that span crates and processes: the `outlet`
 //! executable, and a sidecar of service processes that a test can kill and
-//! restart one by one.
+//! restart one by one; rendered scenes the detector finds ([`scenes`]); the
+//! Fast DDS test peer ([`fastdds`]).
+
+pub mod fastdds;
+pub mod scenes;
 
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};

@@ -1,7 +1,8 @@
 //! The ROS 2 bridge against an independent DDS implementation: Eclipse Cyclone
 //! DDS through its Python package `cyclonedds` (tests/ros2_interop.py) plays a
 //! ROS 2 camera driver publishing `sensor_msgs/Image`, `CameraInfo` and
-//! `PointCloud2` of rendered scenes, and a ROS 2 node reading
+//! `PointCloud2` of rendered scenes (three at 640x480, one at 1920x1080: 6 MB
+//! of rgb8 in fragmented samples), and a ROS 2 node reading
 //! `geometry_msgs/PoseArray` and `PoseStamped`, `/tf` (`tf2_msgs/TFMessage`) and
 //! `vision_msgs/Detection3DArray`; `outlet serve ros2-bridge` feeds the images to
 //! detector, normal and pose over iceoryx2 and publishes their hole poses, which
@@ -27,7 +28,8 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use outlet_protocol::shm;
 use outlet_protocol::wire::{DetectionMsg, HolePosesMsg, service};
-use outlet_tests::{Sidecar, domain, outlet_exe, wait_for};
+use outlet_tests::scenes::{SceneRequest, detectable_scenes as detectable_scenes_of};
+use outlet_tests::{Sidecar, domain, wait_for};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -35,10 +37,8 @@ use std::time::Duration;
 
 type TestResult = Result<(), Box<dyn std::error::Error>>;
 
-/// How many scenes go through the bridge.
+/// How many 640x480 scenes go through the bridge (and one 1920x1080).
 const SCENES: usize = 3;
-/// A scene is used only when `outlet detect` finds its holes this close to the truth (m).
-const DETECT_TOLERANCE_M: f64 = 0.5e-3;
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("the workspace").to_path_buf()
@@ -70,70 +70,27 @@ fn check_python() -> Result<(), String> {
     Ok(())
 }
 
-/// Renders fw_2x1white views into `dir/all` and copies into `dir/scenes` the
-/// first `SCENES` whose holes `outlet detect` finds (plane mode, within
-/// `DETECT_TOLERANCE_M` of the truth): the bridge answers only detected views.
+/// Into `dir/scenes`: the first `SCENES` 640x480 fw_2x1white views whose
+/// holes `outlet detect` finds (the bridge answers only detected views), and
+/// one 1920x1080 view (6 MB of rgb8, about 4 600 RTPS fragments from Cyclone
+/// DDS), named `1920x1080_...` so that it sorts first and the script sends it
+/// as rgb8.
 fn detectable_scenes(dir: &Path) -> Result<PathBuf, Box<dyn std::error::Error>> {
-    let exe = outlet_exe()?;
-    let all = dir.join("all");
     let scenes = dir.join("scenes");
     let _ = std::fs::remove_dir_all(&scenes);
-    std::fs::create_dir_all(&scenes)?;
-    let out = Command::new(&exe)
-        .args(["render", "--scenario", "fw_2x1white", "--count", "8", "--seed", "1", "--threads", "2", "--out"])
-        .arg(&all)
-        .output()?;
-    assert!(out.status.success(), "outlet render: {}", String::from_utf8_lossy(&out.stderr));
-
-    let mut stems: Vec<String> = std::fs::read_dir(&all)?
-        .flatten()
-        .filter_map(|e| e.file_name().to_str()?.strip_suffix(".camera.yaml").map(String::from))
-        .collect();
-    stems.sort();
-    let mut manifest = String::new();
-    let mut truths = Vec::new();
-    for stem in &stems {
-        let truth: serde_json::Value = serde_json::from_slice(&std::fs::read(all.join(format!("{stem}.json")))?)?;
-        let image = truth["image"].as_str().ok_or("truth without an image")?.to_string();
-        let line = serde_json::json!({
-            "image": image, "camera": format!("{stem}.camera.yaml"), "points": format!("{stem}.ply"), "template": "2x1"
-        });
-        manifest.push_str(&format!("{line}\n"));
-        truths.push(truth);
-    }
-    std::fs::write(all.join("manifest.jsonl"), manifest)?;
-    let out = Command::new(&exe).arg("detect").arg("--batch").arg(all.join("manifest.jsonl")).arg("--json").output()?;
-    assert!(out.status.success(), "outlet detect: {}", String::from_utf8_lossy(&out.stderr));
-
-    let mut kept = Vec::new();
-    for ((stem, truth), line) in stems.iter().zip(&truths).zip(String::from_utf8(out.stdout)?.lines()) {
-        let found: serde_json::Value = serde_json::from_str(line)?;
-        let holes = found["holes"].as_array().cloned().unwrap_or_default();
-        let expected = truth["holes"].as_array().cloned().unwrap_or_default();
-        let close = found["found"] == true
-            && found["pose"]["mode"] == "plane"
-            && !expected.is_empty()
-            && holes.len() == expected.len()
-            && holes.iter().zip(&expected).all(|(h, t)| {
-                let d2: f64 = (0..3)
-                    .map(|j| {
-                        (h["position_m"][j].as_f64().unwrap_or(f64::NAN) - t["position_m"][j].as_f64().unwrap_or(0.0))
-                            .powi(2)
-                    })
-                    .sum();
-                d2.sqrt() < DETECT_TOLERANCE_M
-            });
-        if close && kept.len() < SCENES {
-            let image = truth["image"].as_str().ok_or("truth without an image")?;
-            for name in
-                [image.to_string(), format!("{stem}.json"), format!("{stem}.camera.yaml"), format!("{stem}.ply")]
-            {
-                std::fs::copy(all.join(&name), scenes.join(&name))?;
-            }
-            kept.push(stem.clone());
-        }
-    }
-    assert_eq!(kept.len(), SCENES, "only {kept:?} of {stems:?} were detected within {DETECT_TOLERANCE_M} m");
+    let vga = SceneRequest {
+        scenario: "fw_2x1white",
+        width: 640,
+        height: 480,
+        cloud_step: 2,
+        candidates: 8,
+        keep: SCENES,
+        prefix: "",
+    };
+    detectable_scenes_of(dir, &scenes, &vga)?;
+    let hd =
+        SceneRequest { width: 1920, height: 1080, cloud_step: 6, candidates: 6, keep: 1, prefix: "1920x1080_", ..vga };
+    detectable_scenes_of(dir, &scenes, &hd)?;
     Ok(scenes)
 }
 
