@@ -16,6 +16,7 @@ use outlet_protocol::shm;
 use outlet_protocol::wire::{DetectionMsg, TruthMsg, service};
 use serde::Serialize;
 use std::collections::BTreeMap;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -355,13 +356,25 @@ pub fn demo(args: DemoArgs) -> Result<()> {
         if let Some(report) = &mut soak {
             report.result(line.latency_ms);
         }
-        if args.json {
+        let written = if args.json {
             match serde_json::to_string(&line) {
-                Ok(s) => println!("{s}"),
-                Err(e) => tracing::warn!("result line: {e}"),
+                Ok(s) => writeln!(std::io::stdout().lock(), "{s}"),
+                Err(e) => {
+                    tracing::warn!("result line: {e}");
+                    Ok(())
+                }
             }
         } else {
-            print_result(&line);
+            print_result(&mut std::io::stdout().lock(), &line)
+        };
+        // A reader that went away (`outlet demo | head`) ends the demo cleanly.
+        match written {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {
+                eprintln!("outlet demo: stdout closed, stopping");
+                break Ok(());
+            }
+            Err(e) => break Err(anyhow::anyhow!("writing a result to stdout: {e}")),
         }
     };
     if let Some(report) = &mut soak {
@@ -439,7 +452,7 @@ fn result_line(poses: &HolePoses, truth: Option<&TruthMsg>, detect_ms: Option<f6
     }
 }
 
-fn print_result(r: &ResultLine) {
+fn print_result(out: &mut impl Write, r: &ResultLine) -> std::io::Result<()> {
     let error = match (r.status, r.max_error_mm) {
         ("ok", Some(e)) => format!("max error {e:.3} mm ({:.1} sigma)", r.max_error_sigmas.unwrap_or(f64::NAN)),
         ("ok", None) => "no truth".into(),
@@ -452,7 +465,8 @@ fn print_result(r: &ResultLine) {
         Some(_) => "  FALSE ALARM: a hole more than 5 sigma off",
         None => "",
     };
-    println!(
+    writeln!(
+        out,
         "frame {:>6}  {:<5}  {} holes  {}  latency {:.1} ms{}{}",
         r.frame_id,
         r.mode,
@@ -461,12 +475,13 @@ fn print_result(r: &ResultLine) {
         r.latency_ms,
         detect,
         alarm
-    );
+    )?;
     for h in &r.holes {
         let [x, y, z] = h.position_m.map(|v| v * 1e3);
         let err = h.error_mm.map_or(String::new(), |e| format!("  error {e:.3}"));
-        println!("    {:<6} ({x:>8.2}, {y:>8.2}, {z:>8.2}) mm  ± {:.2} mm{err}", h.kind, h.sigma_mm[2]);
+        writeln!(out, "    {:<6} ({x:>8.2}, {y:>8.2}, {z:>8.2}) mm  ± {:.2} mm{err}", h.kind, h.sigma_mm[2])?;
     }
+    Ok(())
 }
 
 #[derive(Debug, Default)]

@@ -43,3 +43,26 @@ fn the_demo_prints_json_results_under_a_millimetre_and_cleans_up() -> Result<(),
     assert!(left.is_empty(), "left in /dev/shm: {left:?}");
     Ok(())
 }
+
+/// `outlet demo | head -1`: the reader goes away, the demo stops its services
+/// and ends without an error (it used to panic on the closed pipe).
+#[test]
+fn the_demo_ends_cleanly_when_its_reader_goes_away() -> Result<(), Box<dyn std::error::Error>> {
+    use std::io::BufRead;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_outlet"))
+        .args(["demo", "--duration", "60", "--json", "--views", "4", "--rate", "10"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()?;
+    let stdout = child.stdout.take().ok_or("no stdout")?;
+    let mut first = String::new();
+    std::io::BufReader::new(stdout).read_line(&mut first)?;
+    // The reader drops here, as `head -1` would after its line.
+    let out = child.wait_with_output()?;
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(serde_json::from_str::<serde_json::Value>(&first).is_ok(), "first line {first:?}");
+    assert!(out.status.success(), "demo failed: {stderr}");
+    assert!(stderr.contains("stdout closed"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    Ok(())
+}
