@@ -256,18 +256,29 @@ pub fn status(args: StatusArgs) -> Result<()> {
             })
             .collect();
         let report = Report { domain: config.domain.clone(), channels, services };
-        if args.json {
+        let text = if args.json {
             match serde_json::to_string(&report) {
-                Ok(line) => println!("{line}"),
-                Err(e) => tracing::warn!("report: {e}"),
-            }
-        } else {
-            print_tables(&report);
-            if args.show_config {
-                for (name, c) in &configs {
-                    println!("# {name}\n{}", c.to_toml().unwrap_or_else(|e| format!("({e})")));
+                Ok(line) => line + "\n",
+                Err(e) => {
+                    tracing::warn!("report: {e}");
+                    String::new()
                 }
             }
+        } else {
+            let mut text = tables(&report);
+            if args.show_config {
+                for (name, c) in &configs {
+                    text += &format!("# {name}\n{}\n", c.to_toml().unwrap_or_else(|e| format!("({e})")));
+                }
+            }
+            text
+        };
+        // A reader that went away (`outlet status | head`) ends the command, not a panic.
+        if let Err(e) = std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes()) {
+            if e.kind() != std::io::ErrorKind::BrokenPipe {
+                tracing::warn!("writing the report: {e}");
+            }
+            return CallbackProgression::Stop;
         }
         counts.iter_mut().for_each(|c| c.0 = 0);
         period_start = Instant::now();
@@ -287,21 +298,25 @@ fn ms(v: Option<f64>) -> String {
     v.map_or("-".into(), |v| format!("{v:.1}"))
 }
 
-fn print_tables(r: &Report) {
-    println!("domain {}", r.domain);
-    println!("{:<28} {:>8} {:>10}", "channel", "rate Hz", "age ms");
+fn tables(r: &Report) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::new();
+    let _ = writeln!(out, "domain {}", r.domain);
+    let _ = writeln!(out, "{:<28} {:>8} {:>10}", "channel", "rate Hz", "age ms");
     for c in &r.channels {
-        println!("{:<28} {:>8.1} {:>10}", c.name, c.rate_hz, ms(c.age_ms));
+        let _ = writeln!(out, "{:<28} {:>8.1} {:>10}", c.name, c.rate_hz, ms(c.age_ms));
     }
-    println!(
+    let _ = writeln!(
+        out,
         "{:<11} {:>7} {:>5} {:>8} {:>8} {:>6} {:>6} {:>7} {:>7} {:>8} {:>8} {:>8}  last rejection",
         "service", "pid", "alive", "in", "out", "rej", "drop", "in Hz", "out Hz", "lat p50", "lat p99", "work p50"
     );
     if r.services.is_empty() {
-        println!("(no heartbeat: no service running in this domain)");
+        let _ = writeln!(out, "(no heartbeat: no service running in this domain)");
     }
     for s in &r.services {
-        println!(
+        let _ = writeln!(
+            out,
             "{:<11} {:>7} {:>5} {:>8} {:>8} {:>6} {:>6} {:>7.1} {:>7.1} {:>8} {:>8} {:>8}  {}",
             s.service,
             s.pid,
@@ -318,5 +333,6 @@ fn print_tables(r: &Report) {
             s.last_rejection
         );
     }
-    println!();
+    let _ = writeln!(out);
+    out
 }
