@@ -21,7 +21,12 @@ An independent DDS implementation (Cyclone DDS through its Python package
   checks one detection per hole: the truth's class (`power`/`ground`), a score
   in 0..1, the PoseArray's pose, a 6x6 covariance whose position block is
   symmetric positive definite with a standard deviation under 5 mm, and whose
-  rotation block is the "unknown" diagonal of 1e6. With `--dump FILE` it writes
+  rotation block is the "unknown" diagonal of 1e6;
+- with `--debug-image-topic` it subscribes to the bridge's debug image
+  (`sensor_msgs/Image`, rgb8: hundreds of DDS fragments each) and checks that
+  one comes for the scene's images: the frame's size and frame_id, something
+  drawn around every hole of the truth, and most of the frame the pixels it
+  sent. With `--dump FILE` it writes
   each answered frame's scores and 3x3 covariances (JSON, by stamp) for the
   Rust test to compare with what the bridge read from shared memory.
 
@@ -612,6 +617,7 @@ class Endpoints:
     diagnostics: DataReader
     tf: DataReader
     detections: DataReader
+    debug_image: DataReader | None
 
 
 def open_endpoints(args) -> Endpoints:
@@ -627,6 +633,7 @@ def open_endpoints(args) -> Endpoints:
         DataReader(dp, topic(args.diagnostics_topic, DiagnosticArray), qos=RESULT_QOS),
         DataReader(dp, topic(args.tf_topic, TFMessage), qos=TF_QOS),
         DataReader(dp, topic(args.detections_topic, Detection3DArray), qos=RESULT_QOS),
+        DataReader(dp, topic(args.debug_image_topic, Image), qos=RESULT_QOS) if args.debug_image_topic else None,
     )
 
 
@@ -677,6 +684,7 @@ class Outcome:
     tf_error_mm: float = math.nan  # worst of the outlet's and the holes' tf translations against the truth
     tf_rotation_error_deg: float = math.nan
     max_sigma_mm: float = math.nan  # the largest hole position standard deviation the detections gave
+    debug_image_changed: float = math.nan  # share of the debug image's pixels drawn over
     dumped: dict | None = None  # what the detections carried, for --dump
 
 
@@ -690,6 +698,7 @@ class Inbox:
         self.diagnostics: dict[str, DiagnosticStatus] = {}
         self.tf: dict[tuple[int, int], TFMessage] = {}  # by the first transform's stamp
         self.detections: dict[tuple[int, int], Detection3DArray] = {}
+        self.debug_images: dict[tuple[int, int], Image] = {}
 
     def drain(self):
         now = time.monotonic()
@@ -709,6 +718,10 @@ class Inbox:
         for m in self.ep.detections.take(N=256):
             if isinstance(m, Detection3DArray):
                 self.detections.setdefault(stamp_key(m.header.stamp), m)
+        if self.ep.debug_image is not None:
+            for m in self.ep.debug_image.take(N=16):
+                if isinstance(m, Image):
+                    self.debug_images.setdefault(stamp_key(m.header.stamp), m)
 
 
 def check_answer(outcome: Outcome, holes: PoseArray, pose: PoseStamped | None, key, frame_id: str):
@@ -869,6 +882,38 @@ def check_detections(outcome: Outcome, det: Detection3DArray | None, holes: Pose
     outcome.dumped = {"stamp": list(key), "scene": scene.stem, **dumped}
 
 
+def check_debug_image(outcome: Outcome, image: Image | None, mine: dict, args):
+    """The debug image of one of this scene's frames: the frame itself with the
+    holes drawn on it."""
+    scene, problems = outcome.scene, outcome.problems
+    topic = dds_topic(args.debug_image_topic)
+    if image is None:
+        problems.append(f"no Image on {topic} with the stamp of any of the {len(mine)} images of this scene")
+        return
+    h, w = scene.bgr.shape[:2]
+    if (image.width, image.height, image.encoding) != (w, h, "rgb8") or image.header.frame_id != args.frame_id:
+        problems.append(
+            f"debug image {image.width}x{image.height} {image.encoding!r} in {image.header.frame_id!r}, "
+            f"expected {w}x{h} 'rgb8' in {args.frame_id!r}"
+        )
+        return
+    got = decode_image(image).astype(int)
+    sent = image_pixels(scene)
+    if scene.encoding == "mono8":
+        sent = cv2.cvtColor(sent, cv2.COLOR_GRAY2BGR)
+    elif scene.encoding == "rgb8":
+        sent = cv2.cvtColor(sent, cv2.COLOR_RGB2BGR)
+    changed = np.abs(got - sent.astype(int)).max(axis=2) > 0
+    if changed.mean() > 0.25:
+        problems.append(f"debug image: {changed.mean():.0%} of the pixels differ from the frame sent")
+    for k, hole in enumerate(scene.truth["holes"]):
+        u, v = (round(c) for c in hole["pixel"])
+        box = changed[max(v - 12, 0) : v + 13, max(u - 12, 0) : u + 13]
+        if box.sum() < 5:
+            problems.append(f"debug image: nothing drawn within 12 px of hole {k} at ({u}, {v})")
+    outcome.debug_image_changed = float(changed.mean())
+
+
 def run_scene(ep: Endpoints, inbox: Inbox, scene: Scene, args, published_all: dict) -> Outcome:
     outcome = Outcome(scene)
     deadline = time.monotonic() + args.timeout
@@ -924,6 +969,15 @@ def run_scene(ep: Endpoints, inbox: Inbox, scene: Scene, args, published_all: di
     check_answer(outcome, holes, pose, answer, args.frame_id)
     check_tf(outcome, inbox.tf.get(answer), answer, args)
     check_detections(outcome, inbox.detections.get(answer), holes, answer, args)
+    if ep.debug_image is not None:
+        # Drawn and sent on a thread of its own, which skips an image when busy:
+        # any of this scene's frames will do.
+        debug_deadline = time.monotonic() + 5.0
+        while not any(k in mine for k in inbox.debug_images) and time.monotonic() < debug_deadline:
+            time.sleep(0.01)
+            inbox.drain()
+        stamp = next((k for k in sorted(inbox.debug_images) if k in mine), None)
+        check_debug_image(outcome, inbox.debug_images.get(stamp), mine, args)
     strangers = [k for k in inbox.pose if k not in published_all]
     if pose is None and strangers:
         outcome.problems.append(
@@ -976,7 +1030,7 @@ def run_test(args) -> int:
                 f"{'PASS' if o.ok else 'FAIL'} {scene.stem}: {scene.encoding}{step}, cloud {layout}; "
                 f"{len(scene.holes_m)} holes, worst {o.hole_error_mm:.3f} mm, rotation {o.rotation_error_deg:.3f} deg; "
                 f"tf worst {o.tf_error_mm:.3f} mm, {o.tf_rotation_error_deg:.3f} deg; "
-                f"largest hole sigma {o.max_sigma_mm:.3f} mm; "
+                f"largest hole sigma {o.max_sigma_mm:.3f} mm; debug image {o.debug_image_changed:.1%} drawn over; "
                 f"{o.published} published, answered in {o.latency_ms:.0f} ms",
                 flush=True,
             )
@@ -1140,6 +1194,7 @@ def main() -> int:
     parser.add_argument("--tf-topic", default="/tf")
     parser.add_argument("--detections-topic", default="/outlet/detections")
     parser.add_argument("--outlet-frame", default="outlet", help="the bridge's [ros2] outlet_frame")
+    parser.add_argument("--debug-image-topic", help="check the bridge's debug image (sensor_msgs/Image) on this topic")
     parser.add_argument("--dump", help="write each answer's detection scores and covariances here (JSON)")
     parser.add_argument(
         "--expect-diagnostics",

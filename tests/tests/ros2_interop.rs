@@ -4,7 +4,8 @@
 //! `PointCloud2` of rendered scenes (three at 640x480, one at 1920x1080: 6 MB
 //! of rgb8 in fragmented samples), and a ROS 2 node reading
 //! `geometry_msgs/PoseArray` and `PoseStamped`, `/tf` (`tf2_msgs/TFMessage`) and
-//! `vision_msgs/Detection3DArray`; `outlet serve ros2-bridge` feeds the images to
+//! `vision_msgs/Detection3DArray` and the debug image (`sensor_msgs/Image`:
+//! the frame with the holes drawn); `outlet serve ros2-bridge` feeds the images to
 //! detector, normal and pose over iceoryx2 and publishes their hole poses, which
 //! must be within a millimetre of the ground truth. This test also reads the
 //! pose and detection messages from shared memory, as the bridge does, and
@@ -213,6 +214,7 @@ frame_id = "camera_optical_frame"
         .arg(&scenes)
         .args(["--domain", &dds_domain.to_string(), "--timeout", "60"])
         .args(["--expect-diagnostics", "outlet/detector,outlet/normal,outlet/pose,outlet/ros2-bridge"])
+        .args(["--debug-image-topic", "/outlet/debug_image"])
         .arg("--dump")
         .arg(sidecar.logs.join("detections.json"))
         .env("CYCLONEDDS_URI", format!("file://{}", cyclone_config.display()))
