@@ -1,20 +1,18 @@
-//! A tiny deterministic generator (SplitMix64): the fit draws its samples from a
-//! seed so that the same cloud and parameters always give the same plane.
+//! The plane fit's sampler: SplitMix64 (`rand_xoshiro`), drawn from a seed so that
+//! the same cloud and parameters always give the same plane.
+
+use rand_xoshiro::rand_core::{Rng, SeedableRng};
 
 #[derive(Debug, Clone)]
-pub(crate) struct SplitMix64(u64);
+pub(crate) struct SplitMix64(rand_xoshiro::SplitMix64);
 
 impl SplitMix64 {
     pub(crate) fn new(seed: u64) -> Self {
-        Self(seed)
+        Self(rand_xoshiro::SplitMix64::seed_from_u64(seed))
     }
 
     pub(crate) fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+        self.0.next_u64()
     }
 
     /// Uniform in `0..n` (`n > 0`), by Lemire's multiply-shift (bias below
@@ -27,6 +25,18 @@ impl SplitMix64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_stream_of_a_seed_never_changes() {
+        // The reference splitmix64.c's outputs (and the hand-written generator's
+        // this replaced): a plane fit is reproducible from its seed.
+        let first = |seed| {
+            let mut r = SplitMix64::new(seed);
+            [r.next_u64(), r.next_u64(), r.next_u64()]
+        };
+        assert_eq!(first(0), [0xe220_a839_7b1d_cdaf, 0x6e78_9e6a_a1b9_65f4, 0x06c4_5d18_8009_454f]);
+        assert_eq!(first(7), [0x63cb_e1e4_5932_0dd7, 0x044c_3cd7_f43c_661c, 0xe698_4080_bab1_2a02]);
+    }
 
     #[test]
     fn draws_cover_the_range_evenly_and_repeat_with_the_seed() {

@@ -14,15 +14,14 @@ const WIDTH: usize = 128;
 const HEIGHT: usize = 96;
 
 /// SplitMix64: the tests' own randomness, seeded by proptest.
-struct Rng(u64);
+struct Rng(rand_xoshiro::SplitMix64);
 
 impl Rng {
+    fn new(seed: u64) -> Self {
+        Self(rand_xoshiro::rand_core::SeedableRng::seed_from_u64(seed))
+    }
     fn unit(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        (rand_xoshiro::rand_core::Rng::next_u64(&mut self.0) >> 11) as f64 / (1u64 << 53) as f64
     }
     fn gauss(&mut self) -> f64 {
         let (a, b) = (self.unit().max(1e-300), self.unit());
@@ -52,7 +51,7 @@ impl Wall {
     /// at 640 wide), each point slid along its ray by the stereo noise model
     /// times `noise_scale`.
     fn cloud(&self, noise_scale: f64, seed: u64) -> Vec<[f32; 3]> {
-        let mut rng = Rng(seed);
+        let mut rng = Rng::new(seed);
         let f = 525.0 * WIDTH as f64 / 640.0;
         let (cx, cy) = ((WIDTH as f64 - 1.0) / 2.0, (HEIGHT as f64 - 1.0) / 2.0);
         let mut points = Vec::with_capacity(WIDTH * HEIGHT);
@@ -189,7 +188,7 @@ proptest! {
     ) {
         let cloud = truth.cloud(1.0, seed);
         let mut shuffled = cloud.clone();
-        let mut rng = Rng(shuffle_seed);
+        let mut rng = Rng::new(shuffle_seed);
         for i in (1..shuffled.len()).rev() {
             shuffled.swap(i, rng.below(i + 1));
         }
@@ -220,7 +219,7 @@ proptest! {
         let clean = truth.cloud(noise_scale, seed);
         let mut damaged = clean.clone();
         let mut kept = Vec::with_capacity(clean.len());
-        let mut rng = Rng(seed ^ 0x5EED);
+        let mut rng = Rng::new(seed ^ 0x5EED);
         for p in damaged.iter_mut() {
             if rng.unit() < fraction {
                 let off = 0.03 + 0.47 * rng.unit();
