@@ -119,6 +119,16 @@ pub fn draw_report(image: &RgbImage, report: &DetectReport) -> RgbImage {
 }
 
 /// Rows of a glyph of the 5x7 bitmap font (no font files to ship or load), 5 bits each (bit 4 = leftmost column).
+///
+/// Why not a real font here, as the plots of `outlet eval` have (issue 16): it would
+/// be cheap in time (DejaVu Sans through `ab_glyph`: about 28 µs for a 20 px line of
+/// 18 characters, less than copying the 640x480 frame the debug image starts from),
+/// but this library, which every detector process and the ROS 2 bridge link, would
+/// carry the font (760 KB) and a rasteriser for three short lines, and the debug
+/// image's label box (`debug_image.rs`, the interop tests' "label, top left, 200 x
+/// 70" that must stay the frame elsewhere) is sized by these glyphs. The labels are
+/// a score, a pose mode and a frame number: the 5x7 glyphs, scaled and shadowed,
+/// read well enough for that.
 fn glyph(c: char) -> [u8; 7] {
     match c.to_ascii_lowercase() {
         'a' => [0x00, 0x00, 0x0E, 0x01, 0x0F, 0x11, 0x0F],

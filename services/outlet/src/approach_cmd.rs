@@ -4,16 +4,19 @@
 //! outlet and moves it along the line to the outlet's centre (the off-axis angle
 //! stays the scene's), rendering at each distance with each camera. Reports
 //! found, wrong, hole pixel error, plane-mode hole error and detection time by
-//! distance and camera (`approach.md`, `approach.jsonl`, `approach.png`).
+//! distance and camera (`approach.md`, `approach.jsonl`, `approach.png` and `.svg`,
+//! and `report.html` with them all).
 
 use crate::eval_cmd::EvalArgs;
+use crate::plot::{BLUE, DrawResult, Figure, GREEN, LIGHT_GREY, ORANGE};
 use anyhow::{Context, Result};
-use image::{Rgb, RgbImage};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use outlet_detector::detect::{Detector, DetectorParams};
 use outlet_pose::solve_plane;
 use outlet_protocol::CameraModel;
 use outlet_sim::approach::{ApproachRenderer, seen_from};
+use plotters::coord::Shift;
+use plotters::prelude::*;
 use std::collections::HashMap;
 use std::fmt::Write as _;
 
@@ -96,7 +99,7 @@ pub fn eval_approach(args: &EvalArgs) -> Result<()> {
             }
         }
     }
-    let bar = indicatif::ProgressBar::new(jobs.len() as u64);
+    let bar = crate::progress::bar(jobs.len(), "approaching");
     let next = std::sync::atomic::AtomicUsize::new(0);
     let outcomes = std::sync::Mutex::new(Vec::new());
     std::thread::scope(|s| {
@@ -136,7 +139,10 @@ pub fn eval_approach(args: &EvalArgs) -> Result<()> {
         let _ = writeln!(jsonl, "{}", serde_json::to_string(o)?);
     }
     std::fs::write(args.out.join("approach.jsonl"), jsonl)?;
-    plot(&outcomes).save_with_format(args.out.join("approach.png"), image::ImageFormat::Png)?;
+    crate::plot::write(&ApproachFigure(&outcomes), &args.out, "approach")?;
+    let caption = "Found and detection time against distance, per camera";
+    let plots = [crate::report_html::Plot { stem: "approach", caption }];
+    crate::report_html::write(&args.out, "outlet eval --approach: from 60 to 10 cm", &table, &plots)?;
     println!("{table}");
     Ok(())
 }
@@ -291,49 +297,89 @@ fn table(outcomes: &[ApproachOutcome], args: &EvalArgs, scenarios: &[&str], coun
     s
 }
 
-/// Found rate against distance, one line per camera.
-fn plot(outcomes: &[ApproachOutcome]) -> RgbImage {
-    let (w, h) = (640u32, 360u32);
-    let (x0, y0, pw, ph) = (60u32, 50u32, 540u32, 250u32);
-    let mut img = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
-    crate::font::draw_text(&mut img, "found vs distance (cm), 10..60", x0, 16, 2, Rgb([0, 0, 0]));
-    crate::font::draw_percent_grid(&mut img, x0, y0, pw, ph);
-    let colours = [Rgb([60, 110, 200]), Rgb([220, 120, 30]), Rgb([40, 160, 60])];
-    let x_of = |d: f64| x0 + ((d - 0.10) / 0.50 * pw as f64).clamp(0.0, pw as f64) as u32;
-    for ((name, ..), colour) in CAMERAS.iter().zip(colours) {
-        let mut last: Option<(u32, u32)> = None;
-        for d in DISTANCES_M.iter().rev() {
-            let at: Vec<&ApproachOutcome> =
-                outcomes.iter().filter(|o| o.camera == *name && (o.distance_m - d).abs() < 1e-9).collect();
-            if at.is_empty() {
-                continue;
+/// A camera's line: (distance in cm, found share, median ms) at each distance it has views of.
+type CameraLine = (&'static str, Vec<(f64, f64, f64)>);
+
+/// Found (%) and median detection time against distance, one line per camera.
+struct ApproachFigure<'a>(&'a [ApproachOutcome]);
+
+impl ApproachFigure<'_> {
+    /// Per camera, its line.
+    fn lines(&self) -> Vec<CameraLine> {
+        CAMERAS
+            .iter()
+            .map(|(name, ..)| {
+                let points = DISTANCES_M
+                    .iter()
+                    .rev()
+                    .filter_map(|d| {
+                        let at: Vec<&ApproachOutcome> =
+                            self.0.iter().filter(|o| o.camera == *name && (o.distance_m - d).abs() < 1e-9).collect();
+                        let found = at.iter().filter(|o| o.correct).count() as f64 / at.len().max(1) as f64;
+                        (!at.is_empty()).then(|| (d * 100.0, found, median(at.iter().map(|o| o.ms).collect())))
+                    })
+                    .collect();
+                (*name, points)
+            })
+            .collect()
+    }
+}
+
+impl Figure for ApproachFigure<'_> {
+    fn size(&self) -> (u32, u32) {
+        (960, 400)
+    }
+
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult<DB> {
+        const FONT: &str = crate::plot::FONT;
+        let lines = self.lines();
+        let colours = [BLUE, ORANGE, GREEN];
+        let panels = root.split_evenly((1, 2));
+        let ms_max =
+            lines.iter().flat_map(|(_, p)| p.iter().map(|q| q.2)).filter(|v| v.is_finite()).fold(1.0, f64::max);
+        for (k, panel) in panels.iter().enumerate() {
+            let (title, y_desc, y_range) = if k == 0 {
+                ("Found vs distance", "found (every hole right)", 0.0..105.0)
+            } else {
+                ("Detection time vs distance", "median ms per image", 0.0..ms_max * 1.15)
+            };
+            let mut chart = ChartBuilder::on(panel)
+                .caption(title, (FONT, 18))
+                .margin(8)
+                .x_label_area_size(44)
+                .y_label_area_size(56)
+                .build_cartesian_2d(8.0..62.0f64, y_range)?;
+            let percent = |v: &f64| format!("{v:.0}%");
+            let plain = |v: &f64| format!("{v:.0}");
+            chart
+                .configure_mesh()
+                .x_desc("distance to the outlet (cm)")
+                .x_label_formatter(&plain)
+                .y_desc(y_desc)
+                .axis_desc_style((FONT, 14))
+                .y_label_formatter(if k == 0 { &percent } else { &plain })
+                .light_line_style(WHITE)
+                .bold_line_style(LIGHT_GREY.mix(0.6))
+                .draw()?;
+            for ((name, points), colour) in lines.iter().zip(colours) {
+                let xy: Vec<(f64, f64)> =
+                    points.iter().map(|(d, found, ms)| (*d, if k == 0 { 100.0 * found } else { *ms })).collect();
+                chart
+                    .draw_series(LineSeries::new(xy.clone(), colour.stroke_width(2)))?
+                    .label(*name)
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
+                chart.draw_series(xy.into_iter().map(|p| Circle::new(p, 3, colour.filled())))?;
             }
-            let rate = at.iter().filter(|o| o.correct).count() as f64 / at.len() as f64;
-            let p = (x_of(*d), y0 + ph - (ph as f64 * rate) as u32);
-            for dx in 0..5 {
-                for dy in 0..5 {
-                    img.put_pixel(
-                        (p.0 + dx).saturating_sub(2).min(w - 1),
-                        (p.1 + dy).saturating_sub(2).min(h - 1),
-                        colour,
-                    );
-                }
-            }
-            if let Some(q) = last {
-                let steps = q.0.abs_diff(p.0).max(q.1.abs_diff(p.1)).max(1);
-                for t in 0..=steps {
-                    let x = q.0 as f64 + (p.0 as f64 - q.0 as f64) * t as f64 / steps as f64;
-                    let y = q.1 as f64 + (p.1 as f64 - q.1 as f64) * t as f64 / steps as f64;
-                    img.put_pixel((x as u32).min(w - 1), (y as u32).min(h - 1), colour);
-                }
-            }
-            last = Some(p);
+            chart
+                .configure_series_labels()
+                .label_font((FONT, 13))
+                .position(if k == 0 { SeriesLabelPosition::LowerRight } else { SeriesLabelPosition::UpperRight })
+                .background_style(WHITE.mix(0.85))
+                .border_style(LIGHT_GREY)
+                .draw()?;
         }
+        Ok(())
     }
-    for (k, ((name, ..), colour)) in CAMERAS.iter().zip(colours).enumerate() {
-        crate::font::draw_text(&mut img, name, x0 + k as u32 * 180, h - 30, 2, colour);
-    }
-    img
 }
 
 #[cfg(test)]
@@ -356,5 +402,42 @@ mod tests {
             assert!((dir - start.translation.vector.normalize()).norm() < 1e-9);
         }
         assert!(approach_pose(&Isometry3::identity(), 0.3).is_none());
+    }
+
+    #[test]
+    fn the_approach_plot_has_a_line_per_camera_with_its_found_share() {
+        let outcome = |camera: &'static str, distance_m: f64, correct: bool| ApproachOutcome {
+            scenario: "orange2x1".into(),
+            approach: 0,
+            camera,
+            distance_m,
+            off_axis_deg: 10.0,
+            pitch_px: 20.0,
+            found: correct,
+            correct,
+            errors_px: Vec::new(),
+            plane_mm: Vec::new(),
+            ms: if camera == "640x480" { 3.0 } else { 20.0 },
+            stages_ms: [0.0; 4],
+        };
+        let outcomes = vec![
+            outcome("640x480", 0.6, true),
+            outcome("640x480", 0.6, false),
+            outcome("640x480", 0.3, true),
+            outcome("1920x1080", 0.3, true),
+        ];
+        let figure = ApproachFigure(&outcomes);
+        let lines = figure.lines();
+        assert_eq!(lines[0], ("640x480", vec![(30.0, 1.0, 3.0), (60.0, 0.5, 3.0)]));
+        assert!(lines[1].1.is_empty());
+        assert_eq!(lines[2], ("1920x1080", vec![(30.0, 1.0, 20.0)]));
+        let img = crate::plot::render_png(&figure).expect("png");
+        assert_eq!(img.dimensions(), (960, 400));
+        let svg = crate::plot::render_svg(&figure).expect("svg");
+        for text in
+            ["Found vs distance", "Detection time vs distance", "640x480", "1280x960", "distance to the outlet (cm)"]
+        {
+            assert!(svg.contains(text), "{text} missing");
+        }
     }
 }

@@ -398,6 +398,7 @@ pub fn train(args: TrainArgs) -> Result<()> {
         }
         pixels.push(Point2::new(u, v));
     }
+    let progress = crate::progress::spinner("finding candidates");
     let grey = grey_of(&image);
     let params = outlet_detector::candidates::CandidateParams::default();
     let candidates = find_candidates(&grey, &params);
@@ -412,6 +413,7 @@ pub fn train(args: TrainArgs) -> Result<()> {
         .collect::<Result<_>>()?;
     let refs: Vec<_> = backgrounds.iter().map(|(g, c)| (g, c.clone())).collect();
     let name = args.output.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "template".into());
+    progress.set_message("training the descriptor (affine views of every hole and background feature)");
     let template = train_template(
         &name,
         geometry,
@@ -421,6 +423,7 @@ pub fn train(args: TrainArgs) -> Result<()> {
         true,
     )?;
     template.write(&args.output)?;
+    progress.finish_and_clear();
     let counts = template.descriptor.sample_counts();
     tracing::info!(
         "wrote {} ({} power, {} ground, {} background samples) in {:.0} ms",

@@ -4,8 +4,6 @@
 use crate::render_cmd::CameraArgs;
 use anyhow::{Context, Result};
 use clap::Args;
-use image::{Rgb, RgbImage};
-use indicatif::{ProgressBar, ProgressStyle};
 use outlet_detector::detect::{Detector, DetectorParams, StageTimes};
 use outlet_sim::{SCENARIOS, paper_count, render_frame, sample_scene};
 use std::collections::HashMap;
@@ -24,7 +22,8 @@ pub struct EvalArgs {
     /// Seed of the rendered scenes (use another than the tests' to evaluate fairly).
     #[arg(long, default_value_t = 1000)]
     pub seed: u64,
-    /// Folder for table.md, rates.png and results.jsonl.
+    /// Folder for table.md, results.jsonl, the plots (rates, errors, timing; PNG and
+    /// SVG) and report.html, which shows them all in a browser.
     #[arg(long, default_value = "eval")]
     pub out: PathBuf,
     /// Worker threads (1 gives the cleanest timings).
@@ -68,45 +67,50 @@ pub struct EvalArgs {
     /// with its camera_info YAML) under `OUT/views`, to rerun `outlet detect` on them.
     #[arg(long, default_value_t = 3)]
     pub save_views: usize,
+    /// Redraw the plots and report.html of OUT from its results.jsonl and table.md
+    /// (an earlier run's), without evaluating again.
+    #[arg(long, conflicts_with_all = ["nees", "approach", "photos"])]
+    pub replot: bool,
 }
 
-/// The outcome of one image.
-#[derive(Debug, Clone, serde::Serialize)]
-struct Outcome {
-    scenario: String,
-    index: usize,
-    positive: bool,
-    found: bool,
-    correct: bool,
+/// The outcome of one image (a line of results.jsonl).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub(crate) struct Outcome {
+    pub(crate) scenario: String,
+    pub(crate) index: usize,
+    pub(crate) positive: bool,
+    pub(crate) found: bool,
+    pub(crate) correct: bool,
     /// Per-hole pixel errors of a found outlet.
-    errors_px: Vec<f64>,
-    ms: f64,
-    stages: [f64; 4],
-    off_axis_deg: f64,
-    distance_m: f64,
+    pub(crate) errors_px: Vec<f64>,
+    pub(crate) ms: f64,
+    /// Candidates, classify, hash, refine (ms).
+    pub(crate) stages: [f64; 4],
+    pub(crate) off_axis_deg: f64,
+    pub(crate) distance_m: f64,
     /// Hole position errors (mm) per pose mode, for correct detections.
-    pose_mm: PoseErrors,
+    pub(crate) pose_mm: PoseErrors,
     /// Of the true holes: how many have a candidate on them, and how many of
     /// those the descriptor classed right (where a miss was lost).
-    holes_with_candidate: usize,
-    holes_classified: usize,
+    pub(crate) holes_with_candidate: usize,
+    pub(crate) holes_classified: usize,
 }
 
 /// Hole position errors (mm) of each pose mode, and the Cramér-Rao bounds (RMS
 /// over holes, mm) for the same pose, pixel noise and wall measurement.
-#[derive(Debug, Clone, Default, serde::Serialize)]
-struct PoseErrors {
-    mono: Vec<f64>,
-    normal: Vec<f64>,
-    normal_cloud: Vec<f64>,
-    plane: Vec<f64>,
-    bound_normal: Option<f64>,
-    bound_plane: Option<f64>,
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub(crate) struct PoseErrors {
+    pub(crate) mono: Vec<f64>,
+    pub(crate) normal: Vec<f64>,
+    pub(crate) normal_cloud: Vec<f64>,
+    pub(crate) plane: Vec<f64>,
+    pub(crate) bound_normal: Option<f64>,
+    pub(crate) bound_plane: Option<f64>,
     /// RMS pixel error of this detection's holes: the measured pixel noise.
-    pixel_rms: Option<f64>,
+    pub(crate) pixel_rms: Option<f64>,
     /// What OpenCV needs to solve the same holes (tests/opencv_pnp.py).
     #[serde(skip)]
-    opencv_input: Option<serde_json::Value>,
+    pub(crate) opencv_input: Option<serde_json::Value>,
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -117,6 +121,9 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
 }
 
 pub fn eval(args: EvalArgs) -> Result<()> {
+    if args.replot {
+        return replot(&args.out);
+    }
     if args.nees {
         return crate::nees::eval_nees(&args);
     }
@@ -156,12 +163,7 @@ pub fn eval(args: EvalArgs) -> Result<()> {
         .iter()
         .flat_map(|s| (0..args.count.unwrap_or_else(|| paper_count(s))).map(move |i| (*s, i)))
         .collect();
-    let bar = ProgressBar::new(jobs.len() as u64);
-    bar.set_style(
-        ProgressStyle::with_template("evaluating [{bar:40}] {pos}/{len} ({eta})")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
+    let bar = crate::progress::bar(jobs.len(), "evaluating");
     let outcomes = Mutex::new(Vec::with_capacity(jobs.len()));
     let next = std::sync::atomic::AtomicUsize::new(0);
     std::thread::scope(|s| {
@@ -201,9 +203,37 @@ pub fn eval(args: EvalArgs) -> Result<()> {
         }
     }
     std::fs::write(args.out.join("pose_inputs.jsonl"), pose_inputs)?;
-    plot(&outcomes).save_with_format(args.out.join("rates.png"), image::ImageFormat::Png)?;
+    let report = write_plots_and_report(&args.out, &table, &outcomes)?;
     println!("{table}");
-    tracing::info!("wrote {}/table.md, rates.png, results.jsonl", args.out.display());
+    tracing::info!("wrote {}/table.md, results.jsonl, plots and {}", args.out.display(), report.display());
+    Ok(())
+}
+
+/// The plots of the outcomes and `OUT/report.html` with the table; returns the report's path.
+fn write_plots_and_report(out: &std::path::Path, table: &str, outcomes: &[Outcome]) -> Result<PathBuf> {
+    let figures = crate::eval_plots::figures(outcomes);
+    for (stem, _, figure) in &figures {
+        crate::plot::write(figure, out, stem)?;
+    }
+    let plots: Vec<crate::report_html::Plot> =
+        figures.iter().map(|(stem, caption, _)| crate::report_html::Plot { stem, caption }).collect();
+    crate::report_html::write(out, "outlet eval: Table I on rendered scenarios", table, &plots)
+}
+
+/// `--replot`: the plots and report of OUT again from its results.jsonl and table.md.
+fn replot(out: &std::path::Path) -> Result<()> {
+    let path = out.join("results.jsonl");
+    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let outcomes: Vec<Outcome> = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(k, l)| serde_json::from_str(l).with_context(|| format!("{} line {}", path.display(), k + 1)))
+        .collect::<Result<_>>()?;
+    let table_path = out.join("table.md");
+    let table = std::fs::read_to_string(&table_path).with_context(|| format!("reading {}", table_path.display()))?;
+    let report = write_plots_and_report(out, &table, &outcomes)?;
+    tracing::info!("redrew {} outcomes' plots and {}", outcomes.len(), report.display());
     Ok(())
 }
 
@@ -472,51 +502,4 @@ fn pose_table(outcomes: &[Outcome]) -> String {
         let _ = writeln!(s, "| {mode} | {uses} | {n} | {rms:.3} | {p95:.3} | {b} |");
     }
     s
-}
-
-/// Two bar charts of the detection rate of the positive images: against the
-/// off-axis angle (0-40 degrees) and the distance (20-50 cm).
-fn plot(outcomes: &[Outcome]) -> RgbImage {
-    let (w, h) = (900u32, 360u32);
-    let mut img = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
-    let positives: Vec<&Outcome> = outcomes.iter().filter(|o| o.positive).collect();
-    let panels: [(&str, Vec<Bar>); 2] = [
-        ("detection rate vs off-axis angle (deg)", bins(&positives, |o| o.off_axis_deg, 0.0, 40.0, 8)),
-        ("detection rate vs distance (cm)", bins(&positives, |o| o.distance_m * 100.0, 20.0, 50.0, 6)),
-    ];
-    for (p, (title, bars)) in panels.iter().enumerate() {
-        let x0 = 40 + p as u32 * 440;
-        let (plot_w, plot_h, y0) = (400u32, 240u32, 60u32);
-        crate::font::draw_text(&mut img, title, x0, 16, 2, Rgb([0, 0, 0]));
-        crate::font::draw_percent_grid(&mut img, x0, y0, plot_w, plot_h);
-        let bw = plot_w / bars.len().max(1) as u32;
-        for (i, (label, rate, n)) in bars.iter().enumerate() {
-            let bx = x0 + i as u32 * bw;
-            let top = y0 + plot_h - (plot_h as f64 * rate.clamp(0.0, 1.0)) as u32;
-            let colour = if *n == 0 { Rgb([230, 230, 230]) } else { Rgb([60, 110, 200]) };
-            for x in bx + 4..bx + bw - 4 {
-                for y in top..y0 + plot_h {
-                    img.put_pixel(x, y, colour);
-                }
-            }
-            crate::font::draw_text(&mut img, label, bx + 4, y0 + plot_h + 8, 1, Rgb([0, 0, 0]));
-            crate::font::draw_text(&mut img, &format!("n={n}"), bx + 4, y0 + plot_h + 20, 1, Rgb([100, 100, 100]));
-        }
-    }
-    img
-}
-
-/// A bar: its label, the detection rate, the number of images.
-type Bar = (String, f64, usize);
-
-fn bins(o: &[&Outcome], key: impl Fn(&Outcome) -> f64, lo: f64, hi: f64, n: usize) -> Vec<Bar> {
-    let step = (hi - lo) / n as f64;
-    (0..n)
-        .map(|k| {
-            let (a, b) = (lo + k as f64 * step, lo + (k + 1) as f64 * step);
-            let inside: Vec<&&Outcome> = o.iter().filter(|x| (a..b + 1e-9).contains(&key(x))).collect();
-            let rate = inside.iter().filter(|x| x.correct).count() as f64 / inside.len().max(1) as f64;
-            (format!("{a:.0}-{b:.0}"), rate, inside.len())
-        })
-        .collect()
 }

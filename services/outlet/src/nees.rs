@@ -290,6 +290,7 @@ pub fn eval_nees(args: &crate::eval_cmd::EvalArgs) -> Result<()> {
     let jobs: Vec<(&str, u64)> = scenarios.iter().flat_map(|s| (0..count).map(move |i| (*s, i))).collect();
     let next = std::sync::atomic::AtomicUsize::new(0);
     let tables = std::sync::Mutex::new(Vec::new());
+    let bar = crate::progress::bar(jobs.len(), "checking covariances");
     std::thread::scope(|scope| {
         for _ in 0..args.threads.max(1) {
             scope.spawn(|| {
@@ -310,6 +311,7 @@ pub fn eval_nees(args: &crate::eval_cmd::EvalArgs) -> Result<()> {
                     ) {
                         tracing::warn!("{scenario} #{index}: {e:#}");
                     }
+                    bar.inc(1);
                 }
                 if let Ok(mut t) = tables.lock() {
                     t.push(table);
@@ -317,6 +319,7 @@ pub fn eval_nees(args: &crate::eval_cmd::EvalArgs) -> Result<()> {
             });
         }
     });
+    bar.finish_and_clear();
     let mut table = NeesTable::default();
     for t in tables.into_inner().unwrap_or_default() {
         table.merge(t);

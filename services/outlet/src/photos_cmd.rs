@@ -428,6 +428,7 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
     let mut detectors: Vec<(String, Detector)> = Vec::new();
     let mut rng = Rng::new(args.seed);
     let mut outcomes = Vec::new();
+    let bar = crate::progress::bar(photos.len() * (args.views + 1), "photos and views");
     for photo in &photos {
         if !detectors.iter().any(|(n, _)| *n == photo.template) {
             let template = outlet::templates::load(&photo.template)?;
@@ -459,6 +460,7 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
             off_axis_deg: off_axis_deg(&model, &photo.camera, &photo.holes),
             result: e,
         });
+        bar.inc(1);
         let mut photo_rng = rng.fork(outcomes.len() as u64);
         let mut made = 0;
         while made < args.views {
@@ -478,6 +480,7 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
                 off_axis_deg: off_axis_deg(&model, &view.camera, &truth),
                 result: e,
             });
+            bar.inc(1);
             if made <= args.save_views {
                 let dir = args.out.join("views");
                 std::fs::create_dir_all(&dir)?;
@@ -487,8 +490,9 @@ pub fn eval_photos(args: &PhotoEvalArgs) -> Result<()> {
                 std::fs::write(dir.join(format!("{name}.yaml")), yaml)?;
             }
         }
-        tracing::info!("{}: {} views", photo.name, made + 1);
+        bar.suspend(|| tracing::info!("{}: {} views", photo.name, made + 1));
     }
+    bar.finish_and_clear();
     std::fs::create_dir_all(args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let mut jsonl = String::new();
     for o in &outcomes {

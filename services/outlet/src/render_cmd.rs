@@ -3,7 +3,6 @@
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use image::RgbImage;
-use indicatif::{ProgressBar, ProgressStyle};
 use outlet_protocol::CameraModel;
 use outlet_protocol::camera_info::{read_camera_info, write_camera_info};
 use outlet_protocol::ply::write_ply_binary;
@@ -139,12 +138,7 @@ fn parallel<F>(n: usize, threads: usize, label: &str, work: F) -> Vec<Result<()>
 where
     F: Fn(usize) -> Result<()> + Sync,
 {
-    let bar = ProgressBar::new(n as u64).with_message(label.to_string());
-    bar.set_style(
-        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} ({eta})")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
+    let bar = crate::progress::bar(n, label);
     let next = AtomicUsize::new(0);
     let results: Vec<std::sync::Mutex<Option<Result<()>>>> = (0..n).map(|_| std::sync::Mutex::new(None)).collect();
     std::thread::scope(|s| {
@@ -218,7 +212,8 @@ pub fn sheet(args: SheetArgs) -> Result<()> {
         RgbImage::from_pixel(label_w + n * (tw + 4), SCENARIOS.len() as u32 * (th + 4), image::Rgb([24, 24, 24]));
     for (row, scenario) in SCENARIOS.iter().enumerate() {
         let y0 = row as u32 * (th + 4);
-        crate::font::draw_text(&mut sheet, scenario, 6, y0 + th / 2 - 4, 1, image::Rgb([235, 235, 235]));
+        let label = plotters::style::RGBColor(235, 235, 235);
+        crate::plot::draw_label(&mut sheet, scenario, (6, (y0 + th / 2) as i32 - 8), 15.0, label)?;
         for col in 0..n {
             let scene = sample_scene(scenario, args.seed, col as u64, &camera)?;
             let frame = render_frame(&scene, "sheet");

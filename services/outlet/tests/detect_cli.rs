@@ -212,8 +212,28 @@ fn eval_writes_table_plot_and_pose_inputs_for_opencv() {
     let table = std::fs::read_to_string(dir.path().join("table.md")).expect("table");
     assert!(table.contains("| orange2x1 | 6 |"), "{table}");
     assert!(table.contains("| plane |") && table.contains("| mono |"));
-    let plot = image::open(dir.path().join("rates.png")).expect("plot");
-    assert!(plot.width() > 400);
+    // Each plot as a PNG that decodes at its size and an SVG with its titles, and one
+    // page with the table and every plot.
+    for (stem, size, title) in [
+        ("rates", (960, 400), "Detection rate vs off-axis angle"),
+        ("errors", (960, 400), "Hole position error per pose mode"),
+        ("timing", (960, 154), "Time per stage"),
+    ] {
+        let plot = image::open(dir.path().join(format!("{stem}.png"))).expect("plot decodes");
+        assert_eq!((plot.width(), plot.height()), size, "{stem}");
+        let svg = std::fs::read_to_string(dir.path().join(format!("{stem}.svg"))).expect("svg");
+        assert!(svg.starts_with("<svg") && svg.contains(title), "{stem}: {title} missing");
+    }
+    let report = std::fs::read_to_string(dir.path().join("report.html")).expect("report");
+    assert!(report.contains("<td>orange2x1</td>") && report.contains("<th>dataset</th>"), "{report}");
+    for stem in ["rates", "errors", "timing"] {
+        assert!(report.contains(&format!("<img src=\"{stem}.png\"")), "{stem} not in the report");
+    }
+    // --replot draws them again from the run's files alone.
+    std::fs::remove_file(dir.path().join("rates.png")).expect("rm");
+    let again = outlet(&["eval", "--replot", "--out", dir.path().to_str().expect("utf-8")]);
+    assert!(again.status.success(), "{}", String::from_utf8_lossy(&again.stderr));
+    assert_eq!(image::open(dir.path().join("rates.png")).expect("redrawn").width(), 960);
     // OpenCV's IPPE and SQPnP on the same pixels, in the interpreter named by
     // OUTLET_PYTHON or else the project's .venv (scripts/test.sh creates it).
     let inputs = dir.path().join("pose_inputs.jsonl");

@@ -142,3 +142,28 @@ fn sizes_and_intrinsics_are_honoured() {
     assert_eq!((camera.width, camera.height, camera.fx), (1280, 960, 1000.0));
     assert_eq!(camera.distortion[0], -0.2);
 }
+
+#[test]
+fn a_terminal_sees_a_progress_bar_and_a_pipe_does_not() {
+    // A pipe (what `output()` gives): the log line, never a bar.
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = dir.path().to_str().expect("utf-8");
+    let args = ["render", "--scenario", "orange2x1", "--count", "6", "--threads", "1", "--out", d];
+    let piped = outlet(&args);
+    assert!(piped.status.success(), "{}", String::from_utf8_lossy(&piped.stderr));
+    let text = String::from_utf8_lossy(&piped.stderr);
+    assert!(text.contains("rendered 6 of 6 images"), "{text}");
+    assert!(!text.contains("rendering [") && !text.contains('\r'), "a bar in a pipe: {text:?}");
+    // A terminal: `script` (util-linux) runs the same command on a pseudo-terminal.
+    let command: Vec<String> =
+        std::iter::once(env!("CARGO_BIN_EXE_outlet")).chain(args).map(|a| format!("'{a}'")).collect();
+    let command = command.join(" ");
+    let tty = Command::new("script")
+        .args(["-q", "-e", "-c", &command, "/dev/null"])
+        .stdin(std::process::Stdio::null())
+        .output()
+        .expect("script (util-linux) runs the command on a terminal");
+    assert!(tty.status.success(), "{}", String::from_utf8_lossy(&tty.stderr));
+    let screen = String::from_utf8_lossy(&tty.stdout);
+    assert!(screen.contains("rendering ["), "no bar on a terminal: {screen:?}");
+}

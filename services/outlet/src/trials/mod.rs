@@ -46,7 +46,7 @@ pub struct TrialsArgs {
     /// Most frames of one approach before it times out.
     #[arg(long, default_value_t = 30)]
     pub max_frames: u32,
-    /// Write the success-rate plot (PNG) here.
+    /// Write the success-rate plot here (PNG; its SVG beside it, same stem).
     #[arg(long)]
     pub plot: Option<PathBuf>,
     /// Write every frame (PNG) and its truth (JSON) here, to look at a trial
@@ -131,8 +131,8 @@ pub fn trials(args: TrialsArgs) -> Result<()> {
     drop(pipelines);
     eprint!("{}", report::summary(&records, wall_s));
     if let Some(path) = &args.plot {
-        report::plot(&records).save_with_format(path, image::ImageFormat::Png)?;
-        eprintln!("outlet trials: wrote {}", path.display());
+        let [png, svg] = crate::plot::write_at(&report::TrialsFigure(&records), path)?;
+        eprintln!("outlet trials: wrote {} and {}", png.display(), svg.display());
     }
     Ok(())
 }

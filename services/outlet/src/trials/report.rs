@@ -4,7 +4,9 @@
 
 use super::judge::{Class, Landing};
 use super::park::Setup;
-use image::{Rgb, RgbImage};
+use crate::plot::{DrawResult, Figure, RateBar, rate_bars};
+use plotters::coord::Shift;
+use plotters::prelude::{DrawingArea, DrawingBackend};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write;
@@ -273,40 +275,74 @@ fn breakdowns() -> [(&'static str, Key); 5] {
 }
 
 /// Bar charts of the success rate against distance, yaw, light and outlet.
-pub fn plot(records: &[TrialRecord]) -> RgbImage {
-    let panels: Vec<(&str, Key)> = breakdowns().into_iter().take(4).collect();
-    let (w, h) = (900u32, 760u32);
-    let mut img = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
-    for (p, (title, key)) in panels.iter().enumerate() {
-        let mut groups: BTreeMap<String, (usize, usize)> = BTreeMap::new();
-        for r in records {
-            let g = groups.entry(key(r)).or_default();
-            g.0 += r.success as usize;
-            g.1 += 1;
-        }
-        let x0 = 40 + (p as u32 % 2) * 440;
-        let top = 20 + (p as u32 / 2) * 370;
-        let (plot_w, plot_h, y0) = (400u32, 240u32, top + 40);
-        crate::font::draw_text(&mut img, &format!("success vs {title}"), x0, top, 2, Rgb([0, 0, 0]));
-        crate::font::draw_percent_grid(&mut img, x0, y0, plot_w, plot_h);
-        let bw = plot_w / groups.len().max(1) as u32;
-        for (i, (label, (ok, n))) in groups.iter().enumerate() {
-            let bx = x0 + i as u32 * bw;
-            let rate = *ok as f64 / (*n).max(1) as f64;
-            let bar_top = y0 + plot_h - (plot_h as f64 * rate.clamp(0.0, 1.0)) as u32;
-            for x in bx + 3..(bx + bw).saturating_sub(3) {
-                for y in bar_top..y0 + plot_h {
-                    img.put_pixel(x, y, Rgb([60, 110, 200]));
+pub struct TrialsFigure<'a>(pub &'a [TrialRecord]);
+
+impl TrialsFigure<'_> {
+    /// Each panel's title and its bars.
+    fn panels(&self) -> Vec<(String, Vec<RateBar>)> {
+        breakdowns()
+            .into_iter()
+            .take(4)
+            .map(|(title, key)| {
+                let mut groups: BTreeMap<String, (usize, usize)> = BTreeMap::new();
+                for r in self.0 {
+                    let g = groups.entry(key(r)).or_default();
+                    g.0 += r.success as usize;
+                    g.1 += 1;
                 }
-            }
-            // The rate in figures: bars near 100% look alike.
-            let figure = format!("{:.1}%", 100.0 * rate);
-            let text_y = (bar_top + 4).min(y0 + plot_h - 10);
-            crate::font::draw_text(&mut img, &figure, bx + 5, text_y, 1, Rgb([255, 255, 255]));
-            let short: String = label.chars().take((bw / 6).max(3) as usize).collect();
-            crate::font::draw_text(&mut img, &short, bx + 3, y0 + plot_h + 8, 1, Rgb([0, 0, 0]));
-            crate::font::draw_text(&mut img, &format!("n={n}"), bx + 3, y0 + plot_h + 20, 1, Rgb([100, 100, 100]));
+                let bars = groups
+                    .into_iter()
+                    .map(|(label, (ok, n))| RateBar { label, rate: ok as f64 / n.max(1) as f64, n })
+                    .collect();
+                (title.to_string(), bars)
+            })
+            .collect()
+    }
+}
+
+impl Figure for TrialsFigure<'_> {
+    fn size(&self) -> (u32, u32) {
+        (1000, 760)
+    }
+
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult<DB> {
+        for ((title, bars), area) in self.panels().iter().zip(root.split_evenly((2, 2))) {
+            rate_bars(&area, &format!("Success vs {title}"), title, "success", bars)?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use outlet_protocol::CameraModel;
+
+    #[test]
+    fn the_trials_plot_has_a_panel_per_breakdown_with_each_groups_success() {
+        let camera = CameraModel::default_vga();
+        let records: Vec<TrialRecord> = (0..12)
+            .map(|i| {
+                let setup = super::super::park::draw("default", 5, i, &camera).expect("setup");
+                let mut r = TrialRecord::new(i, 5, &setup, "2x1");
+                r.success = i % 3 != 0;
+                r
+            })
+            .collect();
+        let figure = TrialsFigure(&records);
+        let panels = figure.panels();
+        let titles: Vec<&str> = panels.iter().map(|(t, _)| t.as_str()).collect();
+        assert_eq!(titles, ["distance (cm)", "yaw (deg)", "light", "outlet"]);
+        for (title, bars) in &panels {
+            assert_eq!(bars.iter().map(|b| b.n).sum::<usize>(), 12, "{title}");
+            let ok: f64 = bars.iter().map(|b| b.rate * b.n as f64).sum();
+            assert!((ok - 8.0).abs() < 1e-9, "{title}: {ok}");
+        }
+        let img = crate::plot::render_png(&figure).expect("png");
+        assert_eq!(img.dimensions(), (1000, 760));
+        let svg = crate::plot::render_svg(&figure).expect("svg");
+        for title in ["Success vs distance (cm)", "Success vs yaw (deg)", "Success vs light", "Success vs outlet"] {
+            assert!(svg.contains(title), "{title} missing");
         }
     }
-    img
 }
