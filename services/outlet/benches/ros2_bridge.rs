@@ -1,6 +1,7 @@
 //! The ROS 2 bridge's cost: `outlet serve ros2-bridge` as a process, fed
-//! 640x480 rgb8 `sensor_msgs/Image`s (each with its CameraInfo) at 30 frames
-//! per second by a ROS 2 participant in this program. Measured:
+//! 640x480 (or `--size WxH`, e.g. 1920x1080: 6 MB, fragmented) rgb8
+//! `sensor_msgs/Image`s (each with its CameraInfo) at 30 frames per second by
+//! a ROS 2 participant in this program. Measured:
 //! - latency: the Image's header stamp (taken just before it is published on
 //!   DDS) to the frame being readable on iceoryx2 here (woken by the frames'
 //!   notification): serialisation, RTPS over loopback, the bridge's checks and
@@ -8,8 +9,8 @@
 //! - the bridge process's CPU time (utime + stime from /proc/<pid>/stat) over
 //!   the measured window, as % of one core, and its resident memory.
 //!
-//! `cargo bench -p outlet --bench ros2_bridge [-- --seconds 20 --fps 30 --cloud --dds-only]`
-//! (`--cloud` adds a 307,200-point PointCloud2 with each image; `--dds-only`
+//! `cargo bench -p outlet --bench ros2_bridge [-- --seconds 20 --fps 30 --size 640x480 --cloud --dds-only]`
+//! (`--cloud` adds a PointCloud2 of one point per pixel with each image; `--dds-only`
 //! measures DDS alone for comparison: no bridge, the Image deserialised by a
 //! second participant in this program, woken as the bridge's input thread is).
 //!
@@ -41,15 +42,22 @@ struct Options {
     fps: f64,
     cloud: bool,
     dds_only: bool,
+    width: u32,
+    height: u32,
 }
 
 fn options() -> Result<Options> {
-    let mut o = Options { seconds: 20.0, fps: 30.0, cloud: false, dds_only: false };
+    let mut o = Options { seconds: 20.0, fps: 30.0, cloud: false, dds_only: false, width: 640, height: 480 };
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
             "--seconds" => o.seconds = args.next().ok_or("--seconds N")?.parse()?,
             "--fps" => o.fps = args.next().ok_or("--fps N")?.parse()?,
+            "--size" => {
+                let size = args.next().ok_or("--size WxH")?;
+                let (w, h) = size.split_once('x').ok_or("--size WxH, e.g. 1920x1080")?;
+                (o.width, o.height) = (w.parse()?, h.parse()?);
+            }
             "--cloud" => o.cloud = true,
             "--dds-only" => o.dds_only = true,
             _ => {} // `--bench` and the like, from cargo
@@ -112,6 +120,10 @@ fn quantile(sorted: &[f64], q: f64) -> f64 {
 
 fn main() -> Result<()> {
     let o = options()?;
+    // Asked before any DDS participant exists: the SIGCHLD of `getconf` can
+    // interrupt rustdds 0.15's event loop thread in epoll_wait, and that loop
+    // ends on EINTR (the participant then neither sends nor receives).
+    let ticks_per_s = clock_ticks_per_second();
     let domain = format!("ros2-bench-{}", std::process::id());
     let dds_domain = (1 + std::process::id() % 200) as u16;
     let dir = tempfile::tempdir()?;
@@ -136,16 +148,24 @@ fn main() -> Result<()> {
     let node = shm::node(&domain, "bench-main")?;
     let beats = shm::heartbeats(&node)?.subscriber_builder().create()?;
 
-    // What a camera driver would publish: a rendered view, its camera info.
-    let camera = CameraModel::default_vga();
+    // What a camera driver would publish: a rendered view, its camera info
+    // (focal length 525 px at 640 wide, scaled with the width).
+    let (w, h) = (o.width, o.height);
+    let f = 525.0 * f64::from(w) / 640.0;
+    let camera = CameraModel::new(
+        w,
+        h,
+        [f, f, (f64::from(w) - 1.0) / 2.0, (f64::from(h) - 1.0) / 2.0],
+        [-0.06, 0.03, 0.0, 0.0, 0.0],
+    )?;
     let scene = outlet_sim::sample_scene("fw_2x1white", 1, 0, &camera)?;
     let frame = outlet_sim::render_frame(&scene, "bench");
     let image =
-        image_of(Header::default(), 640, 480, frame.frame.image.as_raw(), PixelFormat::Rgb8, 1920).ok_or("image")?;
+        image_of(Header::default(), w, h, frame.frame.image.as_raw(), PixelFormat::Rgb8, 3 * w).ok_or("image")?;
     // A depth camera's full-resolution cloud: one point per pixel, a wall 0.5 m away.
-    let wall: Vec<[f32; 3]> = (0..480 * 640)
+    let wall: Vec<[f32; 3]> = (0..w * h)
         .map(|k| {
-            let (u, v) = ((k % 640) as f64, (k / 640) as f64);
+            let (u, v) = ((k % w) as f64, (k / w) as f64);
             let z = 0.5;
             [((u - camera.cx) / camera.fx * z) as f32, ((v - camera.cy) / camera.fy * z) as f32, z as f32]
         })
@@ -156,6 +176,7 @@ fn main() -> Result<()> {
     let image_pub = bridge::publisher::<Image>(&mut node, &ros2.topics.image, &SENSOR_QOS)?;
     let info_pub = bridge::publisher::<CameraInfo>(&mut node, &ros2.topics.camera_info, &SENSOR_QOS)?;
     let cloud_pub = bridge::publisher::<PointCloud2>(&mut node, &ros2.topics.points, &SENSOR_QOS)?;
+    let points = u64::from(w * h);
 
     // The reader on iceoryx2, woken by the frames' notifications, on its own thread.
     let latencies_ms = Arc::new(Mutex::new(Vec::<f64>::new()));
@@ -179,7 +200,7 @@ fn main() -> Result<()> {
                     break;
                 }
                 while let Ok(Some(cloud)) = clouds.receive() {
-                    if measuring.load(Ordering::Relaxed) && cloud.user_header().points == 307_200 {
+                    if measuring.load(Ordering::Relaxed) && cloud.user_header().points == points {
                         received_clouds += 1;
                     }
                 }
@@ -198,7 +219,6 @@ fn main() -> Result<()> {
     let period = Duration::from_secs_f64(1.0 / o.fps);
     let warmup = (3.0 * o.fps) as u64;
     let frames = (o.seconds * o.fps) as u64;
-    let ticks_per_s = clock_ticks_per_second();
     let (mut cpu_start, mut wall_start) = (0, Instant::now());
     let mut next = Instant::now();
     for k in 0..warmup + frames {
@@ -247,9 +267,9 @@ fn main() -> Result<()> {
         })
         .unwrap_or_default();
     println!(
-        "ros2-bridge: {} x 640x480 rgb8 Image + CameraInfo{} at {} fps over DDS on loopback, {:.1} s measured ({} cores, {model})",
+        "ros2-bridge: {} x {w}x{h} rgb8 Image + CameraInfo{} at {} fps over DDS on loopback, {:.1} s measured ({} cores, {model})",
         frames,
-        if o.cloud { " + 307200-point PointCloud2" } else { "" },
+        if o.cloud { format!(" + {points}-point PointCloud2") } else { String::new() },
         o.fps,
         wall,
         std::thread::available_parallelism().map_or(0, |n| n.get()),
@@ -307,8 +327,9 @@ fn dds_only(o: &Options, ros2: &Ros2Config) -> Result<()> {
     let context = bridge::context(ros2)?;
     let mut node = bridge::node(&context, "outlet_bench_camera")?;
     let image_pub = bridge::publisher::<Image>(&mut node, &ros2.topics.image, &SENSOR_QOS)?;
-    let rgb = vec![100u8; 640 * 480 * 3];
-    let image = image_of(Header::default(), 640, 480, &rgb, PixelFormat::Rgb8, 1920).ok_or("image")?;
+    let (w, h) = (o.width, o.height);
+    let rgb = vec![100u8; (w * h * 3) as usize];
+    let image = image_of(Header::default(), w, h, &rgb, PixelFormat::Rgb8, 3 * w).ok_or("image")?;
     let period = Duration::from_secs_f64(1.0 / o.fps);
     let (warmup, frames) = ((3.0 * o.fps) as u64, (o.seconds * o.fps) as u64);
     let mut next = Instant::now();
@@ -328,7 +349,7 @@ fn dds_only(o: &Options, ros2: &Ros2Config) -> Result<()> {
     runner.join().map_err(|_| "the receiver panicked")?;
     let mut l = latencies_ms.lock().map_err(|e| format!("{e:?}"))?.clone();
     l.sort_by(f64::total_cmp);
-    println!("DDS alone: {frames} x 640x480 rgb8 Image at {} fps, rustdds to rustdds on loopback", o.fps);
+    println!("DDS alone: {frames} x {w}x{h} rgb8 Image at {} fps, rustdds to rustdds on loopback", o.fps);
     println!(
         "  received {} of {frames}; latency, Image publish -> deserialised Image in hand (ms): p50 {:.2}  p90 {:.2}  \
          p99 {:.2}  max {:.2}",
