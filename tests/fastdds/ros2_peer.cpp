@@ -12,7 +12,11 @@
 //   (/outlet/detections) and diagnostic_msgs/DiagnosticArray (/diagnostics),
 //   decoded with its own declarations of the types (ros2_msgs.hpp), and writes
 //   what came for each scene's answer as one JSON line to --out; the Rust test
-//   checks those values against the ground truth.
+//   checks those values against the ground truth;
+// - with --debug-image it also reads the bridge's debug image
+//   (/outlet/debug_image, sensor_msgs/Image rgb8: 0.9-6 MB, a fragmented
+//   sample) of one of each scene's frames, and writes its pixels beside --out
+//   (OUT.STEM.debug.rgb) for the Rust test to compare with the frame sent.
 // With --bench SECONDS it instead publishes the first scene's Image and
 // CameraInfo at --fps for 3 s of warm-up and SECONDS measured, and prints the
 // measured window's first and last stamps and its count; the Rust side
@@ -84,6 +88,7 @@ struct Args {
     double bench_s = 0;
     double fps = 30;
     std::vector<std::string> expect_diagnostics;
+    bool debug_image = false;
 };
 
 std::vector<std::string> split(const std::string& text, char by) {
@@ -113,6 +118,7 @@ Args parse_args(int argc, char** argv) {
             else if (k == "--bench") a.bench_s = std::stod(value());
             else if (k == "--fps") a.fps = std::stod(value());
             else if (k == "--expect-diagnostics") a.expect_diagnostics = split(value(), ',');
+            else if (k == "--debug-image") a.debug_image = true;
             else if (k == "--publish-mode") {
                 std::string mode = value();
                 if (mode != "sync" && mode != "async") throw Refused("--publish-mode sync|async, not " + mode);
@@ -489,11 +495,13 @@ template <class M> std::vector<M> take_all(DataReader* r) {
 /// Everything the bridge sent, the first of each stamp.
 struct Inbox {
     DataReader *holes, *pose, *tf, *detections, *diagnostics;
+    DataReader* debug_image;  // or null
     std::map<StampKey, std::pair<ros2::PoseArray, Clock::time_point>> holes_by_stamp;
     std::map<StampKey, ros2::PoseStamped> pose_by_stamp;
     std::map<StampKey, ros2::TFMessage> tf_by_stamp;  // by the first transform's stamp
     std::map<StampKey, ros2::Detection3DArray> detections_by_stamp;
     std::map<std::string, ros2::DiagnosticStatus> diagnostics_by_name;
+    std::map<StampKey, ros2::Image> debug_image_by_stamp;
 
     void drain() {
         auto now = Clock::now();
@@ -507,6 +515,9 @@ struct Inbox {
         }
         for (auto& m : take_all<ros2::DiagnosticArray>(diagnostics)) {
             for (auto& s : m.status) diagnostics_by_name[s.name] = s;
+        }
+        if (debug_image != nullptr) {
+            for (auto& m : take_all<ros2::Image>(debug_image)) debug_image_by_stamp.emplace(key_of(m.header.stamp), m);
         }
     }
 };
@@ -618,17 +629,46 @@ int run_test(const Args& a, const std::vector<Scene>& scenes, DataWriter* image_
             sleep_s(0.005);
             inbox.drain();
         }
+        std::string debug_image = "null";
+        if (inbox.debug_image != nullptr) {
+            // Drawn on a thread of its own, which skips a frame when busy: any of
+            // this scene's frames will do.
+            auto debug_wait = Clock::now();
+            auto ours = [&]() {
+                for (const auto& [k, m] : inbox.debug_image_by_stamp) {
+                    if (mine.count(k)) return &m;
+                }
+                return static_cast<const ros2::Image*>(nullptr);
+            };
+            while (ours() == nullptr && seconds_since(debug_wait) < 5.0) {
+                sleep_s(0.01);
+                inbox.drain();
+            }
+            if (const ros2::Image* m = ours()) {
+                std::string file = a.out + "." + s.stem + ".debug.rgb";
+                std::ofstream pixels(file, std::ios::binary);
+                pixels.write(reinterpret_cast<const char*>(m->data.data()), static_cast<std::streamsize>(m->data.size()));
+                debug_image = "{\"header\":" + json(m->header) + ",\"width\":" + std::to_string(m->width) +
+                              ",\"height\":" + std::to_string(m->height) + ",\"encoding\":" + json_string(m->encoding) +
+                              ",\"step\":" + std::to_string(m->step) + ",\"bytes\":" + std::to_string(m->data.size()) +
+                              ",\"file\":" + json_string(file) + "}";
+            }
+        }
         auto or_null = [](const auto& map, StampKey k) { return map.count(k) ? json(map.at(k)) : std::string("null"); };
         out << "{\"scene\":" << json_string(s.stem) << ",\"answered\":true,\"published\":" << published
             << ",\"latency_ms\":" << num(latency_ms) << ",\"stamp\":[" << answer.first << "," << answer.second
             << "],\"holes\":" << json(holes) << ",\"pose\":" << or_null(inbox.pose_by_stamp, answer)
             << ",\"tf\":" << or_null(inbox.tf_by_stamp, answer)
-            << ",\"detections\":" << or_null(inbox.detections_by_stamp, answer) << "}\n";
+            << ",\"detections\":" << or_null(inbox.detections_by_stamp, answer)
+            << ",\"debug_image\":" << debug_image << "}\n";
         out.flush();
         ++answered;
-        std::printf("ANSWERED %s: %ux%u %s, %zu bytes of pixels; %zu poses; %d published, answered in %.0f ms\n",
+        std::printf("ANSWERED %s: %ux%u %s, %zu bytes of pixels; %zu poses; %d published, answered in %.0f ms%s\n",
                     s.stem.c_str(), s.width, s.height, s.encoding.c_str(), s.pixels.size(), holes.poses.size(),
-                    published, latency_ms);
+                    published, latency_ms,
+                    inbox.debug_image == nullptr ? ""
+                    : debug_image == "null"      ? "; no debug image"
+                                                 : "; a debug image came");
         std::fflush(stdout);
     }
     // Diagnostics from the heartbeats: the expected names, at most --timeout more.
@@ -720,7 +760,9 @@ int run(int argc, char** argv) {
         ep.reader<ros2::TFMessage>("/tf", 100),
         ep.reader<ros2::Detection3DArray>("/outlet/detections", 100),
         ep.reader<ros2::DiagnosticArray>("/diagnostics", 100),
-        {}, {}, {}, {}, {},
+        // What an image viewer subscribes with (reliable); the newest two.
+        a.debug_image ? ep.reader<ros2::Image>("/outlet/debug_image", 2) : nullptr,
+        {}, {}, {}, {}, {}, {},
     };
     if (!wait_for_discovery(ep, a.timeout_s)) return 1;
     return run_test(a, scenes, image_w, info_w, cloud_w, inbox);

@@ -6,13 +6,15 @@
 //! `PointCloud2` of rendered scenes at 640x480 (bgr8, padded rows), 1280x960
 //! (mono8) and 1920x1080 (rgb8: 6 220 800 bytes of pixels, about a hundred
 //! RTPS fragments), and a ROS 2 node reading `geometry_msgs/PoseArray` and
-//! `PoseStamped`, `/tf`, `vision_msgs/Detection3DArray` and `/diagnostics`.
-//! `outlet serve ros2-bridge` feeds the images to detector, normal and pose
-//! and publishes their results; the peer writes what it decoded, and this test
-//! checks it against the ground truth (holes within a millimetre, rotations
-//! within a degree) and against what the bridge read from shared memory
-//! (covariances, scores), and checks that every frame of each size reached
-//! shared memory byte for byte as the peer sent it.
+//! `PoseStamped`, `/tf`, `vision_msgs/Detection3DArray`, `/diagnostics` and
+//! the debug image (`sensor_msgs/Image`, rgb8 of the frame's size: up to 6 MB
+//! from rustdds to Fast DDS). `outlet serve ros2-bridge` feeds the images to
+//! detector, normal and pose and publishes their results; the peer writes what
+//! it decoded, and this test checks it against the ground truth (holes within a
+//! millimetre, rotations within a degree), against what the bridge read from
+//! shared memory (covariances, scores) and against the frames sent (the debug
+//! image: the frame with something drawn at every hole), and checks that every
+//! frame of each size reached shared memory byte for byte as the peer sent it.
 //!
 //! LOOPBACK ONLY: the bridge runs with `[ros2] interfaces = ["lo"]`, and the
 //! peer with FASTRTPS_DEFAULT_PROFILES_FILE=tests/dds/fastdds-loopback.xml
@@ -329,6 +331,56 @@ fn check_answer(answer: &Value, scene: &PeerScene, bridge: &BridgeSide) -> (Vec<
     (problems, worst)
 }
 
+/// The debug image the peer received for one of the scene's frames (its
+/// pixels in the file it names): the frame's size, rgb8, the camera frame, the
+/// pixels sent except where something is drawn, and something drawn within
+/// 12 px of every hole of the truth. The share of pixels drawn over, or what is wrong.
+fn check_debug_image(debug: &Value, scene: &PeerScene) -> Result<f64, String> {
+    if debug.is_null() {
+        return Err("no debug image (/outlet/debug_image) of any of the scene's frames within 5 s".into());
+    }
+    let (w, h) = (scene.width as usize, scene.height as usize);
+    let size = (debug["width"].as_u64(), debug["height"].as_u64(), debug["encoding"].as_str());
+    if size != (Some(w as u64), Some(h as u64), Some("rgb8")) || debug["header"]["frame_id"] != FRAME_ID {
+        return Err(format!("debug image {debug}: expected {w}x{h} rgb8 in {FRAME_ID}"));
+    }
+    let step = debug["step"].as_u64().unwrap_or(0) as usize;
+    let file = debug["file"].as_str().unwrap_or("");
+    let got = std::fs::read(file).map_err(|e| format!("debug image {file}: {e}"))?;
+    if step < 3 * w || got.len() < step * h {
+        return Err(format!("debug image: {} bytes, step {step}, for {w}x{h}", got.len()));
+    }
+    // The frame as sent, as rgb.
+    let sent_rgb = |x: usize, y: usize| -> [u8; 3] {
+        let row = &scene.pixels[y * scene.step as usize..];
+        match scene.encoding {
+            "mono8" => [row[x]; 3],
+            "bgr8" => [row[3 * x + 2], row[3 * x + 1], row[3 * x]],
+            _ => [row[3 * x], row[3 * x + 1], row[3 * x + 2]],
+        }
+    };
+    let changed: Vec<bool> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| got[y * step + 3 * x..y * step + 3 * x + 3] != sent_rgb(x, y))
+        .collect();
+    let share = changed.iter().filter(|c| **c).count() as f64 / changed.len() as f64;
+    if share > 0.25 {
+        return Err(format!("debug image: {:.0} % of the pixels differ from the frame sent", share * 100.0));
+    }
+    for (k, hole) in scene.truth.holes.iter().enumerate() {
+        let (u, v) = (hole.pixel[0].round() as i64, hole.pixel[1].round() as i64);
+        let near = (v - 12..=v + 12)
+            .flat_map(|y| (u - 12..=u + 12).map(move |x| (x, y)))
+            .filter(|&(x, y)| x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h)
+            .filter(|&(x, y)| changed[y as usize * w + x as usize])
+            .count();
+        if near < 5 {
+            return Err(format!("debug image: nothing drawn within 12 px of hole {k} at ({u}, {v})"));
+        }
+    }
+    Ok(share)
+}
+
 /// The last lines of a log.
 fn tail(path: &Path, lines: usize) -> String {
     let text = std::fs::read_to_string(path).unwrap_or_default();
@@ -364,6 +416,7 @@ fn images_of_three_sizes_published_by_fast_dds_give_hole_poses_within_a_millimet
         .args(["--domain", &dds_domain.to_string(), "--timeout", "60", "--frame-id", FRAME_ID])
         .args(["--expect-diagnostics", "outlet/detector,outlet/normal,outlet/pose,outlet/ros2-bridge"])
         .args(["--publish-mode", &publish_mode()])
+        .arg("--debug-image")
         .arg("--out")
         .arg(&out)
         .env("FASTRTPS_DEFAULT_PROFILES_FILE", fastdds::loopback_profile())
@@ -424,15 +477,19 @@ fn images_of_three_sizes_published_by_fast_dds_give_hole_poses_within_a_millimet
             failures.push(format!("{}: the peer wrote nothing", scene.stem));
             continue;
         };
-        let (problems, worst) = check_answer(answer, scene, &bridge);
+        let (mut problems, worst) = check_answer(answer, scene, &bridge);
+        let debug = check_debug_image(&answer["debug_image"], scene);
+        let drawn = debug.as_ref().map_or(f64::NAN, |share| *share);
+        problems.extend(debug.err());
         eprintln!(
-            "{} ({}x{} {}, {} points): worst hole {:.3} mm, {} problems",
+            "{} ({}x{} {}, {} points): worst hole {:.3} mm, debug image {:.2} % drawn over, {} problems",
             scene.stem,
             scene.width,
             scene.height,
             scene.encoding,
             scene.points,
             worst * 1e3,
+            drawn * 100.0,
             problems.len()
         );
         failures.extend(problems.into_iter().map(|p| format!("{}: {p}", scene.stem)));
