@@ -501,6 +501,15 @@ fn images_of_three_sizes_published_by_fast_dds_give_hole_poses_within_a_millimet
         }
     }
     assert!(failures.is_empty(), "{}\n{report}", failures.join("\n"));
+    // Passed: the logs stay, the 60-odd MB of images go.
+    for entry in std::fs::read_dir(&sidecar.logs)?.flatten() {
+        let path = entry.path();
+        if path.is_dir() {
+            let _ = std::fs::remove_dir_all(&path);
+        } else if path.extension().is_some_and(|e| e == "rgb") {
+            let _ = std::fs::remove_file(&path);
+        }
+    }
     Ok(())
 }
 
@@ -579,6 +588,7 @@ fn bench_one(peer: &Path, rendered: &Path, stem: &str, fps: f64, seconds: f64, m
     }
     let _ = child.kill();
     let output = child.wait_with_output().map_err(|x| e(&x))?;
+    let _ = std::fs::remove_dir_all(&peer_dir);
     let stdout = String::from_utf8_lossy(&output.stdout).to_string();
     let window = stdout
         .lines()
