@@ -1,8 +1,8 @@
 //! The ROS 2 bridge against an independent DDS implementation: Eclipse Cyclone
 //! DDS through its Python package `cyclonedds` (tests/ros2_interop.py) plays a
 //! ROS 2 camera driver publishing `sensor_msgs/Image`, `CameraInfo` and
-//! `PointCloud2` of rendered scenes (three at 640x480, one at 1920x1080: 6 MB
-//! of rgb8 in fragmented samples), and a ROS 2 node reading
+//! `PointCloud2` of rendered scenes (three at 640x480, one at 1280x960, one at
+//! 1920x1080: 6 MB of rgb8 in fragmented samples), and a ROS 2 node reading
 //! `geometry_msgs/PoseArray` and `PoseStamped`, `/tf` (`tf2_msgs/TFMessage`) and
 //! `vision_msgs/Detection3DArray` and the debug image (`sensor_msgs/Image`:
 //! the frame with the holes drawn); `outlet serve ros2-bridge` feeds the images to
@@ -75,7 +75,7 @@ fn check_python() -> Result<(), String> {
 /// holes `outlet detect` finds (the bridge answers only detected views), and
 /// one 1920x1080 view (6 MB of rgb8, about 4 600 RTPS fragments from Cyclone
 /// DDS), named `1920x1080_...` so that it sorts first and the script sends it
-/// as rgb8.
+/// as rgb8, and one 1280x960 view (`hd_1280x960_...`, sorted last).
 fn detectable_scenes(dir: &Path) -> Result<PathBuf, Box<dyn std::error::Error>> {
     let scenes = dir.join("scenes");
     let _ = std::fs::remove_dir_all(&scenes);
@@ -92,6 +92,9 @@ fn detectable_scenes(dir: &Path) -> Result<PathBuf, Box<dyn std::error::Error>> 
     let hd =
         SceneRequest { width: 1920, height: 1080, cloud_step: 6, candidates: 6, keep: 1, prefix: "1920x1080_", ..vga };
     detectable_scenes_of(dir, &scenes, &hd)?;
+    // A third size, sorted last (sent as the encoding its place gives it).
+    let sxga = SceneRequest { width: 1280, height: 960, cloud_step: 4, keep: 1, prefix: "hd_1280x960_", ..hd };
+    detectable_scenes_of(dir, &scenes, &sxga)?;
     Ok(scenes)
 }
 
