@@ -233,9 +233,10 @@ pub fn write(figure: &impl Figure, dir: &Path, stem: &str) -> Result<[PathBuf; 2
     Ok([png, svg])
 }
 
-/// Writes the figure as a PNG at `path` (its SVG beside it, same stem).
+/// Writes the figure as a PNG at `path` (its SVG beside it, same stem), making its folder.
 pub fn write_at(figure: &impl Figure, path: &Path) -> Result<[PathBuf; 2]> {
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "plot".into());
     write(figure, dir, &stem)
 }
@@ -400,11 +401,11 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn write_puts_a_png_and_an_svg_beside_each_other() {
+    fn write_at_puts_a_png_and_an_svg_beside_each_other_in_a_new_folder() {
         let dir = tempfile::tempdir().expect("tmp");
-        let [png, svg] = write_at(&bars(), &dir.path().join("trials.png")).expect("write");
-        assert_eq!(png, dir.path().join("trials.png"));
-        assert_eq!(svg, dir.path().join("trials.svg"));
+        let [png, svg] = write_at(&bars(), &dir.path().join("plots/trials.png")).expect("write");
+        assert_eq!(png, dir.path().join("plots/trials.png"));
+        assert_eq!(svg, dir.path().join("plots/trials.svg"));
         assert_eq!(image::open(&png).expect("decodes").to_rgb8().dimensions(), (420, 300));
         assert!(std::fs::read_to_string(&svg).expect("svg").starts_with("<svg"));
     }
