@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The tests on a fresh machine: the interop tests' Python peers (OpenCV, Cyclone DDS)
-# in a project-local virtual environment, then every test of the workspace.
+# The tests on a fresh machine: the interop tests' Python peers (OpenCV, Cyclone DDS,
+# mcap, websockets, protobuf) in a project-local virtual environment, Debian's Fast DDS
+# for the C++ peer, then every test of the workspace.
 #
 #   scripts/test.sh [cargo test arguments]
 #
@@ -41,6 +42,25 @@ setup_venv() {
   "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-input -r "$requirements"
   echo "$want" >"$stamp"
 }
+
+# The Fast DDS interop test builds a C++ peer against Debian's Fast DDS (the test fails,
+# naming the packages, without them). As for python3-venv: installed with apt-get when
+# this runs as root, otherwise the script says what to install.
+setup_fastdds() {
+  if command -v c++ >/dev/null 2>&1 && [ -f /usr/include/fastdds/dds/domain/DomainParticipantFactory.hpp ] \
+    && [ -f /usr/include/fastcdr/Cdr.h ]; then
+    return
+  fi
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "== installing g++, libfastrtps-dev, libfastcdr-dev (apt-get): the Fast DDS interop test's peer" >&2
+    apt-get update -qq && apt-get install -y -qq g++ libfastrtps-dev libfastcdr-dev >/dev/null
+  else
+    echo "scripts/test.sh: the Fast DDS interop test needs g++, libfastrtps-dev and libfastcdr-dev" \
+      "(Debian/Ubuntu: sudo apt-get install g++ libfastrtps-dev libfastcdr-dev)" >&2
+    exit 2
+  fi
+}
+setup_fastdds
 
 if [ -z "${OUTLET_PYTHON:-}" ]; then
   setup_venv
