@@ -38,7 +38,7 @@ pub fn train(
 
     let dim = params.crop_size * params.crop_size;
     let poses = draw_poses(params);
-    let mut rng = Rng(params.seed ^ 0x005E_ED0F_C0E1);
+    let mut rng = Rng::new(params.seed ^ 0x005E_ED0F_C0E1);
     // Normalised samples, grouped by class.
     let mut raw: Vec<f32> = Vec::with_capacity(features.len() * poses.len() * dim);
     let mut counts = [0usize; 3];
