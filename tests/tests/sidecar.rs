@@ -271,3 +271,40 @@ fn services_stopped_one_by_one_leave_nothing_in_shared_memory() -> TestResult {
     }
     Ok(())
 }
+
+/// Ctrl-Z then `fg` sends SIGCONT; SIGURG and SIGWINCH come to any terminal
+/// program. Each interrupts a service's wait, and none may end it: only SIGINT
+/// and SIGTERM do (it used to stop on any of them).
+#[test]
+fn signals_that_only_interrupt_do_not_stop_a_service() -> TestResult {
+    use nix::sys::signal::{Signal, kill};
+    let domain = domain("signals");
+    let mut sidecar = Sidecar::new(&domain)?;
+    start_pipeline(&mut sidecar)?;
+    // Every service's first heartbeat: each is in its WaitSet.
+    let node = shm::node(&domain, "signals-test")?;
+    let beats = shm::heartbeats(&node)?.subscriber_builder().create().map_err(|e| format!("{e:?}"))?;
+    let mut seen = std::collections::BTreeSet::new();
+    wait_for(Duration::from_secs(30), || {
+        while let Ok(Some(b)) = beats.receive() {
+            seen.insert(b.payload().service_name().to_string());
+        }
+        (seen.len() >= 4).then_some(())
+    })
+    .ok_or_else(|| format!("heartbeats only from {seen:?}"))?;
+    for service in ["normal", "pose", "detector", "sim-camera"] {
+        let pid = sidecar.pid(service).ok_or(format!("no {service}"))?;
+        let pid = nix::unistd::Pid::from_raw(i32::try_from(pid)?);
+        for signal in [Signal::SIGCONT, Signal::SIGURG, Signal::SIGWINCH] {
+            kill(pid, signal)?;
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(sidecar.dead(), None, "a service ended on SIGCONT, SIGURG or SIGWINCH");
+    // SIGTERM still stops each one.
+    for service in ["sim-camera", "detector", "pose", "normal"] {
+        sidecar.terminate(service)?;
+    }
+    Ok(())
+}

@@ -400,7 +400,7 @@ pub fn run(rt: &Runtime, args: &FilesArgs) -> Result<()> {
         }
         CallbackProgression::Continue
     };
-    let waited = waitset.wait_and_process(on_event).map_err(|e| anyhow::anyhow!("waiting: {e:?}"));
+    let waited = super::run_until_stopped(&waitset, on_event);
     rt.stopped(&health);
     if let Some(e) = failure {
         return Err(e);

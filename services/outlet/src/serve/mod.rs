@@ -339,6 +339,29 @@ pub fn notifier(runtime: &Runtime, service_name: &str) -> Result<Notifier<ipc::S
         .map_err(|e| anyhow::anyhow!("{service_name} notifier: {e:?}"))
 }
 
+/// Runs `waitset` until SIGINT or SIGTERM, or until `on_event` stops it. A
+/// signal that only interrupts the wait (SIGCONT after Ctrl-Z and `fg`, SIGURG,
+/// SIGWINCH) does not end a service: iceoryx2 reports every interrupted wait
+/// alike, so the signal it recorded last is asked.
+pub fn run_until_stopped(
+    waitset: &WaitSet<ipc::Service>,
+    mut on_event: impl FnMut(WaitSetAttachmentId<ipc::Service>) -> CallbackProgression,
+) -> Result<()> {
+    loop {
+        match waitset.wait_and_process(&mut on_event) {
+            Ok(iceoryx2::waitset::WaitSetRunResult::Interrupt) if !interrupted_to_stop() => continue,
+            Ok(_) => return Ok(()),
+            Err(e) => return Err(anyhow::anyhow!("waiting: {e:?}")),
+        }
+    }
+}
+
+/// Whether the signal that interrupted a wait asks the service to stop (SIGINT,
+/// SIGTERM). Takes iceoryx2's record of the last signal.
+pub fn interrupted_to_stop() -> bool {
+    iceoryx2_bb_posix::signal::SignalHandler::termination_requested()
+}
+
 /// Clears a listener's pending notifications (the samples are what count).
 pub fn clear(listener: &Listener<ipc::Service>) {
     if let Err(e) = listener.try_wait(|_| {}) {

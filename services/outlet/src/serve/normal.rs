@@ -56,7 +56,7 @@ pub fn run(rt: &Runtime) -> Result<()> {
         }
         CallbackProgression::Continue
     };
-    waitset.wait_and_process(on_event).map_err(|e| anyhow::anyhow!("waiting: {e:?}"))?;
+    super::run_until_stopped(&waitset, on_event)?;
     rt.stopped(&health);
     Ok(())
 }

@@ -107,7 +107,8 @@ pub fn run(rt: &Runtime) -> Result<()> {
             CallbackProgression::Continue
         };
         match waitset.wait_and_process_once_with_timeout(on_event, timeout) {
-            Ok(WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) => break,
+            Ok(WaitSetRunResult::TerminationRequest) => break,
+            Ok(WaitSetRunResult::Interrupt) if super::interrupted_to_stop() => break,
             Ok(_) => {}
             Err(e) => return Err(anyhow::anyhow!("waiting: {e:?}")),
         }

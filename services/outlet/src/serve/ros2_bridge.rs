@@ -345,7 +345,7 @@ pub fn run(rt: &Runtime) -> Result<()> {
         }
         CallbackProgression::Continue
     };
-    let waited = waitset.wait_and_process(on_event).map_err(|e| anyhow::anyhow!("waiting: {e:?}"));
+    let waited = super::run_until_stopped(&waitset, on_event);
     // The readers and the debug image's writers first, then the node and its DDS participant.
     stop_handle.stop();
     let joined = input_thread.join();

@@ -98,7 +98,7 @@ pub fn run(rt: &Runtime, host: &str, port: u16) -> Result<()> {
         }
         CallbackProgression::Continue
     };
-    waitset.wait_and_process(on_event).map_err(|e| anyhow::anyhow!("waiting: {e:?}"))?;
+    super::run_until_stopped(&waitset, on_event)?;
     rt.stopped(&health);
     // Clients are told goodbye before the process ends.
     server.stop().wait_blocking();
