@@ -138,6 +138,36 @@ impl Sidecar {
         Ok(args)
     }
 
+    /// `outlet.toml` in the logs folder for a 2x1 pipeline with the ROS 2 bridge
+    /// on the loopback interface only, in DDS domain `dds_domain`, the camera
+    /// frame `frame_id`: what the ROS 2 interop tests run with.
+    pub fn write_ros2_loopback_config(&self, dds_domain: u32, frame_id: &str) -> std::io::Result<PathBuf> {
+        let config = self.logs.join("outlet.toml");
+        std::fs::write(
+            &config,
+            format!(
+                r#"domain = "{}"
+heartbeat_ms = 200
+
+[detector]
+template = "2x1"
+
+[pose]
+template = "2x1"
+# A detection waits for the wall plane of its own frame.
+plane_wait_ms = 2000.0
+
+[ros2]
+domain_id = {dds_domain}
+interfaces = ["lo"]
+frame_id = "{frame_id}"
+"#,
+                self.domain
+            ),
+        )?;
+        Ok(config)
+    }
+
     /// SIGTERM, as a robot's supervisor stops a service, and waits (at most
     /// 5 s) for it to end.
     pub fn terminate(&mut self, service: &str) -> Result<(), String> {

@@ -80,27 +80,7 @@ fn the_debug_image_shows_the_holes_where_they_are_and_the_markers_sit_on_the_pub
     let domain = domain("ros2-debug");
     let mut sidecar = Sidecar::new(&domain)?;
     let dds_domain = (1 + std::process::id() % 200) as u16;
-    let config = sidecar.logs.join("outlet.toml");
-    std::fs::write(
-        &config,
-        format!(
-            r#"domain = "{domain}"
-heartbeat_ms = 200
-
-[detector]
-template = "2x1"
-
-[pose]
-template = "2x1"
-# A detection waits for the wall plane of its own frame.
-plane_wait_ms = 2000.0
-
-[ros2]
-domain_id = {dds_domain}
-interfaces = ["lo"]
-"#
-        ),
-    )?;
+    let config = sidecar.write_ros2_loopback_config(u32::from(dds_domain), "camera_optical_frame")?;
     for service in ["normal", "pose", "detector", "ros2-bridge"] {
         sidecar.start_with_config(&config, service, &[])?;
     }

@@ -67,34 +67,6 @@ fn dds_domain(k: u32) -> u32 {
     1 + (std::process::id() % 115) * 2 + k
 }
 
-/// The sidecar's configuration: `services` get `[ros2]` on loopback in `dds_domain`.
-fn write_config(sidecar: &Sidecar, dds_domain: u32) -> Result<std::path::PathBuf, std::io::Error> {
-    let config = sidecar.logs.join("outlet.toml");
-    std::fs::write(
-        &config,
-        format!(
-            r#"domain = "{}"
-heartbeat_ms = 200
-
-[detector]
-template = "2x1"
-
-[pose]
-template = "2x1"
-# A detection waits for the wall plane of its own frame.
-plane_wait_ms = 2000.0
-
-[ros2]
-domain_id = {dds_domain}
-interfaces = ["lo"]
-frame_id = "{FRAME_ID}"
-"#,
-            sidecar.domain
-        ),
-    )?;
-    Ok(config)
-}
-
 /// Renders one detectable scene per size into `work/scenes` and writes each
 /// in its encoding for the peer into `work/peer`.
 fn peer_scenes(work: &Path) -> Result<Vec<PeerScene>, Box<dyn std::error::Error>> {
@@ -403,7 +375,7 @@ fn images_of_three_sizes_published_by_fast_dds_give_hole_poses_within_a_millimet
     let mut bridge = BridgeSide::default();
 
     let dds_domain = dds_domain(0);
-    let config = write_config(&sidecar, dds_domain)?;
+    let config = sidecar.write_ros2_loopback_config(dds_domain, FRAME_ID)?;
     for service in ["normal", "pose", "detector", "ros2-bridge"] {
         sidecar.start_with_config(&config, service, &[])?;
     }
@@ -552,7 +524,7 @@ fn bench_one(peer: &Path, rendered: &Path, stem: &str, fps: f64, seconds: f64, m
     let _ = std::fs::remove_dir_all(&peer_dir);
     let scene = fastdds::write_peer_scene(rendered, stem, "rgb8", 0, &peer_dir)?;
     let dds_domain = dds_domain(1);
-    let config = write_config(&sidecar, dds_domain).map_err(|x| e(&x))?;
+    let config = sidecar.write_ros2_loopback_config(dds_domain, FRAME_ID).map_err(|x| e(&x))?;
     sidecar.start_with_config(&config, "ros2-bridge", &[])?;
     let pid = sidecar.pid("ros2-bridge").ok_or("no bridge")?;
 

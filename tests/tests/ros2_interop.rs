@@ -182,28 +182,7 @@ fn images_published_by_cyclone_dds_give_hole_poses_on_ros2_within_a_millimetre()
 
     // A DDS domain of this run alone, and the bridge on the loopback interface only.
     let dds_domain = 1 + std::process::id() % 200;
-    let config = sidecar.logs.join("outlet.toml");
-    std::fs::write(
-        &config,
-        format!(
-            r#"domain = "{domain}"
-heartbeat_ms = 200
-
-[detector]
-template = "2x1"
-
-[pose]
-template = "2x1"
-# A detection waits for the wall plane of its own frame.
-plane_wait_ms = 2000.0
-
-[ros2]
-domain_id = {dds_domain}
-interfaces = ["lo"]
-frame_id = "camera_optical_frame"
-"#
-        ),
-    )?;
+    let config = sidecar.write_ros2_loopback_config(dds_domain, "camera_optical_frame")?;
     for service in ["normal", "pose", "detector", "ros2-bridge"] {
         sidecar.start_with_config(&config, service, &[])?;
     }

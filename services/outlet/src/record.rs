@@ -4,6 +4,7 @@
 //! field problem brought to the desk, or a ROS 2 bag of a real camera run
 //! through the sidecar with no ROS installed.
 
+use crate::serve::subscriber;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use iceoryx2::port::subscriber::Subscriber;
@@ -54,13 +55,6 @@ pub struct ReplayArgs {
     /// The point cloud topic, when the file has several.
     #[arg(long)]
     pub points_topic: Option<String>,
-}
-
-fn subscriber<T: std::fmt::Debug + ZeroCopySend + 'static>(
-    node: &Node<ipc::Service>,
-    name: &str,
-) -> Result<Subscriber<ipc::Service, T, ()>> {
-    shm::messages::<T>(node, name)?.subscriber_builder().create().map_err(|e| anyhow::anyhow!("{name}: {e:?}"))
 }
 
 /// Takes every waiting sample of `sub` into `write`; stops at the first write error.

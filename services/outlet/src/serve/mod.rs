@@ -17,6 +17,7 @@ use clap::{Args, Subcommand};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use outlet::config::Config;
 use outlet::health::Health;
@@ -360,6 +361,14 @@ pub fn run_until_stopped(
 /// SIGTERM). Takes iceoryx2's record of the last signal.
 pub fn interrupted_to_stop() -> bool {
     iceoryx2_bb_posix::signal::SignalHandler::termination_requested()
+}
+
+/// A subscriber of the fixed-size messages of `name` (as the readers of results take them).
+pub fn subscriber<T: std::fmt::Debug + ZeroCopySend + 'static>(
+    node: &Node<ipc::Service>,
+    name: &str,
+) -> Result<Subscriber<ipc::Service, T, ()>> {
+    shm::messages::<T>(node, name)?.subscriber_builder().create().map_err(|e| anyhow::anyhow!("{name}: {e:?}"))
 }
 
 /// Clears a listener's pending notifications (the samples are what count).

@@ -3,21 +3,13 @@
 //! other: the services do not know it is there, and with no client connected it
 //! converts nothing.
 
-use super::{Runtime, clear};
+use super::{Runtime, clear, subscriber};
 use anyhow::{Context, Result};
-use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use outlet::health::Health;
 use outlet::live_view::LiveView;
 use outlet_protocol::shm;
 use outlet_protocol::wire::{DetectionMsg, HolePosesMsg, WallPlaneMsg, service};
-
-fn subscriber<T: std::fmt::Debug + ZeroCopySend + 'static>(
-    node: &Node<ipc::Service>,
-    name: &str,
-) -> Result<Subscriber<ipc::Service, T, ()>> {
-    shm::messages::<T>(node, name)?.subscriber_builder().create().map_err(|e| anyhow::anyhow!("{name}: {e:?}"))
-}
 
 pub fn run(rt: &Runtime, host: &str, port: u16) -> Result<()> {
     let err = |e: &dyn std::fmt::Debug| anyhow::anyhow!("{e:?}");
