@@ -207,6 +207,34 @@ impl Touch {
 /// Hole candidates of a grey image (see [`crate::grey_of`]), highest contrast first.
 /// Never panics; an empty image or one without levels gives none.
 pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candidate> {
+    SCRATCH.with(|scratch| match scratch.try_borrow_mut() {
+        Ok(mut scratch) => find_with(grey, params, &mut scratch),
+        Err(_) => find_with(grey, params, &mut Scratch::default()),
+    })
+}
+
+/// The buffers of one search, kept by each thread between frames: a frame's
+/// labels alone are 4 bytes a pixel (1.2 MB at 640x480), and taking them fresh
+/// from the allocator each frame costs a page fault per 4 kB.
+#[derive(Default)]
+struct Scratch {
+    rows: Vec<u16>,
+    smooth: Vec<u8>,
+    banded: Vec<([u32; 3], u8)>,
+    runs: Vec<[u32; 3]>,
+    start: Vec<u32>,
+    label: Vec<u32>,
+    parent: Vec<u32>,
+    blobs: Vec<Blob>,
+    alive: Vec<(u32, u32)>,
+    found: Vec<Candidate>,
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
+}
+
+fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) -> Vec<Candidate> {
     let (w, h) = (grey.width() as usize, grey.height() as usize);
     let _span = tracing::debug_span!("candidates", w, h).entered();
     let mut levels: Vec<u8> = params.levels.iter().copied().filter(|&l| l > 0).collect();
@@ -215,15 +243,21 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
     let padded = (w + 2).checked_mul(h + 2).filter(|&n| n < DEAD as usize);
     let pixels = grey.as_raw().get(..w * h).filter(|p| !p.is_empty());
     let (Some(&top), Some(padded), Some(pixels)) = (levels.last(), padded, pixels) else { return Vec::new() };
-    let smooth = smooth_3x3(pixels, w, h);
+    let Scratch { rows, smooth, banded, runs, start, label, parent, blobs, alive, found } = scratch;
+    smooth_3x3(pixels, w, h, rows, smooth);
+    let smooth: &[u8] = smooth;
 
-    let (start, runs) = runs_by_band(&smooth, w, &levels, top);
+    runs_by_band(smooth, w, &levels, top, banded, start, runs);
     let stride = w + 2;
-    let mut label = vec![NONE; padded];
-    let mut forest = Forest { parent: Vec::new(), blobs: Vec::new(), max_side: params.max_side.min(255) };
+    label.clear();
+    label.resize(padded, NONE);
+    parent.clear();
+    blobs.clear();
+    let mut forest =
+        Forest { parent: std::mem::take(parent), blobs: std::mem::take(blobs), max_side: params.max_side.min(255) };
     // Live roots, with the area they had when last scored.
-    let mut alive: Vec<(u32, u32)> = Vec::new();
-    let mut found = Vec::new();
+    alive.clear();
+    found.clear();
     for (b, &level) in levels.iter().enumerate() {
         for &[x, y, len] in &runs[start[b] as usize..start[b + 1] as usize] {
             // Labels live in a frame one pixel wider on each side: every pixel has 8 neighbours.
@@ -254,12 +288,14 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
             let blob = &forest.blobs[*node as usize];
             if blob.area != *seen {
                 *seen = blob.area;
-                found.extend(score(blob, &smooth, w, h, level, params));
+                found.extend(score(blob, smooth, w, h, level, params));
             }
             true
         });
     }
-    let kept = suppress_duplicates(found, &mut label, stride, h + 2);
+    *parent = forest.parent;
+    *blobs = forest.blobs;
+    let kept = suppress_duplicates(found, label, stride, h + 2);
     tracing::debug!(candidates = kept.len());
     kept
 }
@@ -268,41 +304,51 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
 /// within a band does not matter. Returns the runs (maximal stretches of one band along a
 /// row, as [x, y, length]) grouped by band, in raster order within a band to keep the
 /// union-find's memory accesses local, and where each band's runs start.
-fn runs_by_band(smooth: &[u8], w: usize, levels: &[u8], top: u8) -> (Vec<u32>, Vec<[u32; 3]>) {
+fn runs_by_band(
+    smooth: &[u8],
+    w: usize,
+    levels: &[u8],
+    top: u8,
+    banded: &mut Vec<([u32; 3], u8)>,
+    start: &mut Vec<u32>,
+    sorted: &mut Vec<[u32; 3]>,
+) {
     let bands = levels.len();
     let mut band_of = [u8::MAX; 256];
     for (v, band) in band_of.iter_mut().enumerate().take(top as usize) {
         *band = levels.partition_point(|&l| l as usize <= v) as u8;
     }
-    let mut runs: Vec<([u32; 3], u8)> = Vec::new();
+    banded.clear();
     for (y, row) in smooth.chunks_exact(w).enumerate() {
         let (mut x0, mut band) = (0, band_of[row[0] as usize]);
         for (x, &v) in row.iter().enumerate().skip(1) {
             if band_of[v as usize] != band {
                 if (band as usize) < bands {
-                    runs.push(([x0 as u32, y as u32, (x - x0) as u32], band));
+                    banded.push(([x0 as u32, y as u32, (x - x0) as u32], band));
                 }
                 (x0, band) = (x, band_of[v as usize]);
             }
         }
         if (band as usize) < bands {
-            runs.push(([x0 as u32, y as u32, (w - x0) as u32], band));
+            banded.push(([x0 as u32, y as u32, (w - x0) as u32], band));
         }
     }
-    let mut start = vec![0u32; bands + 1];
-    for &(_, band) in &runs {
+    start.clear();
+    start.resize(bands + 1, 0);
+    for &(_, band) in banded.iter() {
         start[band as usize + 1] += 1;
     }
     for b in 1..=bands {
         start[b] += start[b - 1];
     }
-    let mut sorted = vec![[0u32; 3]; runs.len()];
-    let mut next = start.clone();
-    for &(run, band) in &runs {
+    sorted.clear();
+    sorted.resize(banded.len(), [0u32; 3]);
+    let mut next = [0u32; 256];
+    next[..bands].copy_from_slice(&start[..bands]);
+    for &(run, band) in banded.iter() {
         sorted[next[band as usize] as usize] = run;
         next[band as usize] += 1;
     }
-    (start, sorted)
 }
 
 /// The candidate of a component at a level, if its size and contrast qualify.
@@ -333,12 +379,12 @@ fn score(blob: &Blob, smooth: &[u8], w: usize, h: usize, level: u8, params: &Can
 
 /// Keeps the highest contrast candidate of each group closer than
 /// [`DUPLICATE_RADIUS_PX`]; `grid` (padded image size, any content) marks kept centres.
-fn suppress_duplicates(mut found: Vec<Candidate>, grid: &mut [u32], stride: usize, rows: usize) -> Vec<Candidate> {
+fn suppress_duplicates(found: &mut [Candidate], grid: &mut [u32], stride: usize, rows: usize) -> Vec<Candidate> {
     found.sort_by(|a, b| b.contrast.total_cmp(&a.contrast));
     grid.fill(NONE);
     let reach = DUPLICATE_RADIUS_PX.ceil() as usize + 1;
     let mut kept: Vec<Candidate> = Vec::with_capacity(found.len());
-    for c in found {
+    for &c in found.iter() {
         let (cx, cy) = (c.centre.x.round() as usize + 1, c.centre.y.round() as usize + 1);
         let near = (cy.saturating_sub(reach)..(cy + reach + 1).min(rows)).any(|y| {
             (cx.saturating_sub(reach)..(cx + reach + 1).min(stride)).any(|x| {
@@ -355,8 +401,9 @@ fn suppress_duplicates(mut found: Vec<Candidate>, grid: &mut [u32], stride: usiz
 }
 
 /// 3x3 binomial smoothing ([1 2 1] / 4 each way), borders replicated.
-fn smooth_3x3(src: &[u8], w: usize, h: usize) -> Vec<u8> {
-    let mut rows = vec![0u16; w * h];
+fn smooth_3x3(src: &[u8], w: usize, h: usize, rows: &mut Vec<u16>, out: &mut Vec<u8>) {
+    rows.clear();
+    rows.resize(w * h, 0);
     for (s, r) in src.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
         if w == 1 {
             r[0] = 4 * s[0] as u16;
@@ -368,7 +415,8 @@ fn smooth_3x3(src: &[u8], w: usize, h: usize) -> Vec<u8> {
             *o = t[0] as u16 + 2 * t[1] as u16 + t[2] as u16;
         }
     }
-    let mut out = vec![0u8; w * h];
+    out.clear();
+    out.resize(w * h, 0);
     for (y, o) in out.chunks_exact_mut(w).enumerate() {
         let row = |y: usize| &rows[y * w..(y + 1) * w];
         let (a, b, c) = (row(y.saturating_sub(1)), row(y), row((y + 1).min(h - 1)));
@@ -376,5 +424,4 @@ fn smooth_3x3(src: &[u8], w: usize, h: usize) -> Vec<u8> {
             *o = ((a + 2 * b + c + 8) >> 4) as u8;
         }
     }
-    out
 }

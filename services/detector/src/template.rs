@@ -169,8 +169,30 @@ pub fn train_template(
     params: &DescriptorParams,
     calibrate_sizes: bool,
 ) -> Result<Template, TemplateError> {
+    train_template_tilted(name, geometry, views, backgrounds, params, calibrate_sizes, &[])
+}
+
+/// [`train_template`], each labelled hole also trained foreshortened by each of
+/// `tilts` (the ratio of a view's stretches, 1/cos of its off-axis angle: 2.0 is
+/// 60 degrees) across three axes of the face 60 degrees apart, as ASIFT samples
+/// tilts: the poses' own stretches reach about 45 degrees from the training
+/// view. On the Willow views a tilt of 2.0 found more steep views, and one
+/// wrong (BENCHMARKS.md, "Tilted training"), so `outlet train` adds none unless
+/// asked.
+pub fn train_template_tilted(
+    name: &str,
+    geometry: OutletGeometry,
+    views: &[TrainingImage],
+    backgrounds: &[(&GrayImage, Vec<Candidate>)],
+    params: &DescriptorParams,
+    calibrate_sizes: bool,
+    tilts: &[f64],
+) -> Result<Template, TemplateError> {
     let invalid = |reason: String| TemplateError::Invalid { name: name.to_string(), reason };
     geometry.validate(name).map_err(|e| invalid(e.to_string()))?;
+    if let Some(t) = tilts.iter().find(|t| !(t.is_finite() && (1.0..=10.0).contains(*t))) {
+        return Err(invalid(format!("tilt {t} is not within 1..=10")));
+    }
     if views.is_empty() {
         return Err(invalid("no labelled training image".into()));
     }
@@ -206,6 +228,7 @@ pub fn train_template(
                 if stretch.max() > HEAD_ON_ALSO_ABOVE * stretch.min() {
                     features.push(TrainingFeature { view, ..feature });
                 }
+                features.extend(tilted_views(&view, tilts).map(|view| TrainingFeature { view, ..feature }));
             }
             // The candidate that the candidate stage found on this hole.
             let on_hole = view
@@ -243,6 +266,20 @@ pub fn train_template(
 /// trained head-on: 1.25 is 37 degrees off-axis, which the poses' own stretches
 /// (0.8..1.2) nearly cover.
 const HEAD_ON_ALSO_ABOVE: f64 = 1.25;
+
+/// The head-on `view` turned away by each foreshortening of `tilts` about three
+/// axes of the outlet's face 60 degrees apart: the face compressed by t across
+/// the axis, so that a patch covers t times more of it that way.
+fn tilted_views<'a>(view: &'a Matrix2<f64>, tilts: &'a [f64]) -> impl Iterator<Item = Matrix2<f64>> + 'a {
+    const AXES: usize = 3;
+    tilts.iter().flat_map(move |&t| {
+        (0..AXES).map(move |k| {
+            let (s, c) = (std::f64::consts::PI * k as f64 / AXES as f64).sin_cos();
+            let axis = Matrix2::new(c, -s, s, c);
+            view * axis * Matrix2::new(1.0, 0.0, 0.0, t) * axis.transpose()
+        })
+    })
+}
 
 /// The homography from the outlet frame (mm) to the labelled pixels, where the
 /// labels fit one (lens distortion left in: it is nearly affine over an outlet).
@@ -286,4 +323,22 @@ fn slot_pitch_px(geometry: &OutletGeometry, pixels: &[Point2<f64>]) -> Option<f6
     }
     let ratio = sum / n.max(1) as f64;
     (n > 0 && ratio > 0.0).then_some(ratio * outlet_protocol::geometry::SLOT_PITCH_MM)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_tilted_view_stretches_the_face_by_the_tilt_across_each_axis() {
+        let head_on = Matrix2::new(0.8, -0.6, 0.6, 0.8);
+        let views: Vec<Matrix2<f64>> = tilted_views(&head_on, &[2.0, 1.5]).collect();
+        assert_eq!(views.len(), 6);
+        for (v, t) in views.iter().zip([2.0, 2.0, 2.0, 1.5, 1.5, 1.5]) {
+            let s = v.singular_values();
+            assert!((s.max() - t).abs() < 1e-9 && (s.min() - 1.0).abs() < 1e-9, "{s:?} for tilt {t}");
+        }
+        // Three different axes, not one three times.
+        assert!((views[0] - views[1]).norm() > 0.5 && (views[1] - views[2]).norm() > 0.5);
+    }
 }

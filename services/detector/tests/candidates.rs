@@ -377,3 +377,24 @@ fn one_pass_component_tree_matches_labelling_every_level() {
         }
     }
 }
+
+/// The search keeps its buffers between calls on a thread: what one image left
+/// behind (a larger frame, other levels) never shows in the next one's candidates.
+#[test]
+fn buffers_kept_between_calls_leave_no_trace() {
+    let cam = camera(640, 480);
+    let grey_of_scene = |scenario: &str, k: u64, cam: &CameraModel| {
+        let scene = sample_scene(scenario, 31, k, cam).expect("scene");
+        grey_of(&render_frame(&scene, "x").frame.image)
+    };
+    let small = grey_of_scene("white2x2", 1, &cam);
+    let big = grey_of_scene("fw_2x1white", 2, &camera(1280, 960));
+    let params = CandidateParams::high_recall();
+    // In a fresh thread: the first call there, with empty buffers.
+    let fresh = std::thread::scope(|s| s.spawn(|| find_candidates(&small, &params)).join().expect("thread"));
+    assert!(!fresh.is_empty());
+    let _ = find_candidates(&big, &CandidateParams::default());
+    assert_eq!(find_candidates(&small, &params), fresh);
+    let _ = find_candidates(&GrayImage::new(0, 0), &params);
+    assert_eq!(find_candidates(&small, &params), fresh);
+}

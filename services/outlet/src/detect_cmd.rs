@@ -9,7 +9,7 @@ use outlet_detector::candidates::find_candidates;
 use outlet_detector::descriptor::DescriptorParams;
 use outlet_detector::detect::{Detection, Detector, DetectorParams};
 use outlet_detector::grey_of;
-use outlet_detector::template::{TrainingImage, train_template};
+use outlet_detector::template::{TrainingImage, train_template_tilted};
 use outlet_normal::{PlaneParams, fit_wall_plane};
 use outlet_pose::{OutletPose, PoseError, solve_mono, solve_normal, solve_plane};
 use outlet_protocol::camera_info::read_camera_info;
@@ -369,6 +369,11 @@ pub struct TrainArgs {
     /// Template file to write.
     #[arg(long)]
     pub output: PathBuf,
+    /// Also train each hole foreshortened by this factor (1/cos of an off-axis
+    /// angle: 2.0 is 60 degrees), about three axes; repeat for several. None by
+    /// default (see `train_template_tilted`).
+    #[arg(long = "tilt")]
+    pub tilts: Vec<f64>,
 }
 
 pub fn train(args: TrainArgs) -> Result<()> {
@@ -414,13 +419,14 @@ pub fn train(args: TrainArgs) -> Result<()> {
     let refs: Vec<_> = backgrounds.iter().map(|(g, c)| (g, c.clone())).collect();
     let name = args.output.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "template".into());
     progress.set_message("training the descriptor (affine views of every hole and background feature)");
-    let template = train_template(
+    let template = train_template_tilted(
         &name,
         geometry,
         &[TrainingImage { grey: &grey, holes: pixels, candidates }],
         &refs,
         &DescriptorParams::default(),
         true,
+        &args.tilts,
     )?;
     template.write(&args.output)?;
     progress.finish_and_clear();
