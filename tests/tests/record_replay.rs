@@ -16,12 +16,22 @@ fn a_recording_replayed_into_another_domain_gives_the_same_holes() -> Result<(),
     let truth = shm::messages::<TruthMsg>(&node, service::TRUTH)?.subscriber_builder().create()?;
     let file = std::env::temp_dir().join(format!("outlet-{live}.rec"));
     let mut camera = Sidecar::new(&live)?;
-    let recorder =
-        Command::new(outlet_exe()?).args(["record", "--domain", &live, "--frames", "8"]).arg(&file).spawn()?;
+    let recorder = Command::new(outlet_exe()?)
+        .args(["record", "--domain", &live, "--frames", "8"])
+        .arg(&file)
+        .stderr(std::process::Stdio::piped())
+        .spawn()?;
     std::thread::sleep(Duration::from_millis(300)); // the recorder subscribes first
+    // Ctrl-Z and `fg` (SIGCONT), a resized terminal (SIGWINCH): the recording goes on.
+    let pid = nix::unistd::Pid::from_raw(i32::try_from(recorder.id())?);
+    for signal in [nix::sys::signal::Signal::SIGCONT, nix::sys::signal::Signal::SIGWINCH] {
+        nix::sys::signal::kill(pid, signal)?;
+    }
     camera.start("sim-camera", &["--scenario", "fw_2x1white", "--rate", "10", "--views", "3"])?;
-    let status = recorder.wait_with_output()?.status;
-    assert!(status.success(), "outlet record failed: {status}");
+    let output = recorder.wait_with_output()?;
+    let said = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "outlet record failed: {}: {said}", output.status);
+    assert!(said.contains("outlet record: 8 frames"), "the recording ended early: {said}");
     let mut truths = HashMap::new();
     while let Some(t) = truth.receive()? {
         truths.insert(t.payload().frame_id, *t.payload());

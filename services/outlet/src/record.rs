@@ -125,7 +125,8 @@ pub fn record(args: RecordArgs) -> Result<()> {
             || args.frames.is_some_and(|n| recorder.counts[0] >= n);
         if done { CallbackProgression::Stop } else { CallbackProgression::Continue }
     };
-    let waited = waitset.wait_and_process(on_event).map_err(|e| anyhow::anyhow!("waiting: {e:?}"));
+    // Recording to the end of a file must survive Ctrl-Z and `fg` (SIGCONT) too.
+    let waited = crate::serve::run_until_stopped(&waitset, on_event);
     if let Some(e) = failure {
         return Err(e).with_context(|| format!("writing {}", args.out.display()));
     }

@@ -289,7 +289,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
             CallbackProgression::Continue
         }
     };
-    waitset.wait_and_process(on_event).map_err(|e| anyhow::anyhow!("waiting: {e:?}"))?;
+    crate::serve::run_until_stopped(&waitset, on_event)?;
     let _ = done;
     Ok(())
 }
