@@ -201,6 +201,41 @@ fn fit(
     robust: bool,
     window_mm: [f64; 2],
 ) -> Option<Refined> {
+    FIT_SCRATCH.with(|scratch| match scratch.try_borrow_mut() {
+        Ok(mut scratch) => fit_with(grey, guess, mm_to_px, shape, params, robust, window_mm, &mut scratch),
+        Err(_) => fit_with(grey, guess, mm_to_px, shape, params, robust, window_mm, &mut FitScratch::default()),
+    })
+}
+
+/// The per-pixel vectors of one outline fit, kept by each thread between fits:
+/// a frame fits a dozen to a hundred outlines, each of up to `max_pixels` pixels.
+#[derive(Default)]
+struct FitScratch {
+    pixels: Vec<(Vector2<f64>, f64)>,
+    weights: Vec<f64>,
+    cov: Vec<(f64, Vector2<f64>)>,
+    cov_dx: Vec<(f64, Vector2<f64>)>,
+    cov_dy: Vec<(f64, Vector2<f64>)>,
+    abs: Vec<f64>,
+    r: Vec<f64>,
+}
+
+thread_local! {
+    static FIT_SCRATCH: std::cell::RefCell<FitScratch> = std::cell::RefCell::new(FitScratch::default());
+}
+
+#[allow(clippy::too_many_arguments)]
+fn fit_with(
+    grey: &GrayImage,
+    guess: Point2<f64>,
+    mm_to_px: &Matrix2<f64>,
+    shape: HoleShape,
+    params: &RefineParams,
+    robust: bool,
+    window_mm: [f64; 2],
+    scratch: &mut FitScratch,
+) -> Option<Refined> {
+    let FitScratch { pixels, weights, cov, cov_dx, cov_dy, abs, r } = scratch;
     let px_to_mm = mm_to_px.try_inverse()?;
     let [ex, ey] = window_mm;
     let (ex, ey) = (ex + params.margin_mm, ey + params.margin_mm);
@@ -219,7 +254,7 @@ fn fit(
     // Pixels inside the elliptic window (in mm: within the margin box).
     let window_pixels = ((2 * rx + 1) * (2 * ry + 1)) as f64;
     let stride = (window_pixels / params.max_pixels.max(1) as f64).sqrt().ceil().max(1.0) as usize;
-    let mut pixels: Vec<(Vector2<f64>, f64)> = Vec::with_capacity((window_pixels as usize / (stride * stride)) + 1);
+    pixels.clear();
     for y in (gy - ry..=gy + ry).step_by(stride) {
         for x in (gx - rx..=gx + rx).step_by(stride) {
             let d = Vector2::new(x as f64 - guess.x, y as f64 - guess.y);
@@ -232,23 +267,24 @@ fn fit(
     if pixels.len() < 12 {
         return None;
     }
+    let pixels: &[(Vector2<f64>, f64)] = pixels;
     // A pixel's width in mm, for the coverage ramp across the outline.
     let pixel_mm = px_to_mm.determinant().abs().sqrt();
     // Coverage (smooth in the offset, so that its derivative is useful) and mm
     // coordinates of each pixel for the outline offset `t` (px).
     let coverage = |t: Vector2<f64>, out: &mut Vec<(f64, Vector2<f64>)>| {
         out.clear();
-        for (d, _) in &pixels {
+        for (d, _) in pixels {
             let q = px_to_mm * (d - t);
             out.push(((0.5 - shape.sd(q) / pixel_mm).clamp(0.0, 1.0), q));
         }
     };
     // Best linear parameters (face level a, inside level b, ramp cx, cy) for an
     // offset, and the residual vector.
-    let solve = |cov: &[(f64, Vector2<f64>)], weights: &[f64]| -> Option<(Vector4<f64>, Vec<f64>)> {
+    let solve = |cov: &[(f64, Vector2<f64>)], weights: &[f64], r: &mut Vec<f64>| -> Option<Vector4<f64>> {
         let mut ata = Matrix4::zeros();
         let mut atb = Vector4::zeros();
-        for (((m, q), (_, v)), w) in cov.iter().zip(&pixels).zip(weights) {
+        for (((m, q), (_, v)), w) in cov.iter().zip(pixels).zip(weights) {
             // Without the ramp while the outline is still far off: a ramp inside a
             // misplaced outline would mimic the shift and stall the fit.
             let ramp = if robust { 1.0 } else { 0.0 };
@@ -258,25 +294,23 @@ fn fit(
         }
         ata += Matrix4::identity() * 1e-6;
         let p = ata.cholesky()?.solve(&atb);
-        let r = cov
-            .iter()
-            .zip(&pixels)
-            .map(|((m, q), (_, v))| v - (p[0] * (1.0 - m) + m * (p[1] + p[2] * q.x + p[3] * q.y)))
-            .collect();
-        Some((p, r))
+        r.clear();
+        r.extend(
+            cov.iter()
+                .zip(pixels)
+                .map(|((m, q), (_, v))| v - (p[0] * (1.0 - m) + m * (p[1] + p[2] * q.x + p[3] * q.y))),
+        );
+        Some(p)
     };
     let mut t = Vector2::zeros();
     // Huber weights: what the outline does not explain (a T-slot's branch, a dark
     // spot, a glint) should not drag the centre.
-    let mut weights = vec![1.0; pixels.len()];
-    let mut cov = Vec::with_capacity(pixels.len());
-    let mut cov_dx = Vec::with_capacity(pixels.len());
-    let mut cov_dy = Vec::with_capacity(pixels.len());
+    weights.clear();
+    weights.resize(pixels.len(), 1.0);
     let step = 0.05;
-    let mut abs: Vec<f64> = Vec::with_capacity(pixels.len());
     for _ in 0..params.iterations {
-        coverage(t, &mut cov);
-        let (p, r) = solve(&cov, &weights)?;
+        coverage(t, cov);
+        let p = solve(cov, weights, r)?;
         // The median absolute residual (a selection, not a sort: this runs
         // every iteration of every hole).
         abs.clear();
@@ -285,12 +319,12 @@ fn fit(
         let median = *abs.select_nth_unstable_by(mid, f64::total_cmp).1;
         let k = 1.5 * (median / 0.6745).max(1.0);
         if robust {
-            for (w, v) in weights.iter_mut().zip(&r) {
+            for (w, v) in weights.iter_mut().zip(r.iter()) {
                 *w = if v.abs() <= k { 1.0 } else { k / v.abs() };
             }
         }
-        coverage(t + Vector2::new(step, 0.0), &mut cov_dx);
-        coverage(t + Vector2::new(0.0, step), &mut cov_dy);
+        coverage(t + Vector2::new(step, 0.0), cov_dx);
+        coverage(t + Vector2::new(0.0, step), cov_dy);
         // d(model)/dt by finite differences of the coverage, linear parameters held.
         let model = |(m, q): &(f64, Vector2<f64>)| p[0] * (1.0 - m) + m * (p[1] + p[2] * q.x + p[3] * q.y);
         let mut jtj = Matrix2::zeros();
@@ -308,13 +342,13 @@ fn fit(
             break;
         }
     }
-    coverage(t, &mut cov);
-    let (p, r) = solve(&cov, &weights)?;
+    coverage(t, cov);
+    let p = solve(cov, weights, r)?;
     let rms = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
     // The offset's covariance from the normal equations at the solution, scaled
     // by the residual variance (6 parameters: two offsets, four linear).
-    coverage(t + Vector2::new(step, 0.0), &mut cov_dx);
-    coverage(t + Vector2::new(0.0, step), &mut cov_dy);
+    coverage(t + Vector2::new(step, 0.0), cov_dx);
+    coverage(t + Vector2::new(0.0, step), cov_dy);
     let model = |(m, q): &(f64, Vector2<f64>)| p[0] * (1.0 - m) + m * (p[1] + p[2] * q.x + p[3] * q.y);
     let (mut jtj, mut wrr, mut wsum) = (Matrix2::zeros(), 0.0, 0.0);
     for i in 0..pixels.len() {
