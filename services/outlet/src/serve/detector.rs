@@ -27,6 +27,8 @@ pub fn run(rt: &Runtime) -> Result<()> {
     let tick = waitset.attach_interval(rt.heartbeat_period()).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
     let mut health = Health::new(rt.name);
     tracing::info!("detector ready ({template}): {} -> {}", service::FRAMES, service::DETECTIONS);
+    // The grey image's pixels, handed back after each frame: no allocation per frame.
+    let mut spare: Vec<u8> = Vec::new();
     let on_event = |id: WaitSetAttachmentId<ipc::Service>| {
         if id.has_event_from(&tick) {
             rt.beat(&mut health);
@@ -40,7 +42,7 @@ pub fn run(rt: &Runtime) -> Result<()> {
                 let header = *sample.user_header();
                 let checked =
                     header.validate(sample.payload().len()).map_err(|e| e.to_string()).and_then(|(format, camera)| {
-                        grey_of_frame(&header, format, sample.payload())
+                        grey_of_frame(&header, format, sample.payload(), std::mem::take(&mut spare))
                             .map(|grey| (grey, camera))
                             .ok_or_else(|| format!("frame {}: pixels do not fill the image", header.frame_id))
                     });
@@ -52,6 +54,7 @@ pub fn run(rt: &Runtime) -> Result<()> {
                         let time_s = header.capture_time_ns as f64 * 1e-9;
                         let report = tracker.detect_grey(&detector, &grey, Some(&camera), time_s).report;
                         let detect_ms = started.elapsed().as_secs_f64() * 1e3;
+                        spare = grey.into_raw();
                         let msg = detection_msg(&header, &camera, report.detection.as_ref(), detect_ms);
                         if output.send(msg) {
                             health.output(header.capture_time_ns, detect_ms);
@@ -72,12 +75,19 @@ pub fn run(rt: &Runtime) -> Result<()> {
 }
 
 /// The detector's grey image ([`outlet_detector::grey_of`]: the brightest
-/// channel) straight from a frame's pixels (any stride), without a colour copy;
-/// None when the payload is shorter than the header says.
-fn grey_of_frame(header: &FrameHeader, format: PixelFormat, pixels: &[u8]) -> Option<image::GrayImage> {
+/// channel) straight from a frame's pixels (any stride), without a colour copy,
+/// into `grey`'s memory (the last frame's); None when the payload is shorter than
+/// the header says.
+fn grey_of_frame(
+    header: &FrameHeader,
+    format: PixelFormat,
+    pixels: &[u8],
+    mut grey: Vec<u8>,
+) -> Option<image::GrayImage> {
     let (w, h, stride) = (header.width as usize, header.height as usize, header.stride as usize);
     let row_bytes = w * format.channels();
-    let mut grey = Vec::with_capacity(w * h);
+    grey.clear();
+    grey.reserve(w * h);
     for row in pixels.chunks(stride.max(1)).take(h) {
         let row = row.get(..row_bytes)?;
         match format {
@@ -127,4 +137,27 @@ fn detection_msg(
         }
     }
     msg
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_grey_of_a_padded_frame_is_its_brightest_channel_whatever_the_buffer_held() {
+        let camera = outlet_protocol::CameraModel::new(3, 2, [3.0, 3.0, 1.0, 0.5], [0.0; 5]).expect("camera");
+        let mut header = FrameHeader::new(1, 0, PixelFormat::Bgr8, &camera);
+        header.stride = 12; // 9 bytes of pixels and 3 of padding per row
+        let pixels: Vec<u8> = (0..24u8).map(|i| if i % 12 >= 9 { 255 } else { i * 10 % 97 }).collect();
+        let expected: Vec<u8> = pixels
+            .chunks(12)
+            .flat_map(|row| row[..9].chunks_exact(3).map(|p| *p.iter().max().unwrap_or(&0)).collect::<Vec<_>>())
+            .collect();
+        let fresh = grey_of_frame(&header, PixelFormat::Bgr8, &pixels, Vec::new()).expect("grey");
+        assert_eq!(fresh.as_raw(), &expected);
+        // The last frame's memory, larger and full of other values, gives the same.
+        let reused = grey_of_frame(&header, PixelFormat::Bgr8, &pixels, vec![7; 100]).expect("grey");
+        assert_eq!(reused.as_raw(), &expected);
+        assert_eq!(grey_of_frame(&header, PixelFormat::Bgr8, &pixels[..20], Vec::new()), None, "a short payload");
+    }
 }
