@@ -26,19 +26,19 @@ pub fn fit_homography(pairs: &[(Point2<f64>, Point2<f64>)]) -> Option<Matrix3<f6
         return None;
     }
     // Centroid at the origin, mean distance sqrt(2): conditions the system.
-    let normaliser = |points: &mut dyn Iterator<Item = Point2<f64>>| {
-        let v: Vec<Point2<f64>> = points.collect();
-        let n = v.len() as f64;
-        let c = v.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / n;
-        let d = v.iter().map(|p| (p.coords - c).norm()).sum::<f64>() / n;
+    // (Two passes over the pairs, no copy: this runs many times per frame.)
+    let normaliser = |point: fn(&(Point2<f64>, Point2<f64>)) -> Point2<f64>| {
+        let n = pairs.len() as f64;
+        let c = pairs.iter().fold(Vector2::zeros(), |s, p| s + point(p).coords) / n;
+        let d = pairs.iter().map(|p| (point(p).coords - c).norm()).sum::<f64>() / n;
         if !(d > 1e-12 && d.is_finite()) {
             return None;
         }
         let s = std::f64::consts::SQRT_2 / d;
         Some(Matrix3::new(s, 0.0, -s * c.x, 0.0, s, -s * c.y, 0.0, 0.0, 1.0))
     };
-    let ta = normaliser(&mut pairs.iter().map(|p| p.0))?;
-    let tb = normaliser(&mut pairs.iter().map(|p| p.1))?;
+    let ta = normaliser(|p| p.0)?;
+    let tb = normaliser(|p| p.1)?;
     // AᵀA accumulated directly: its null vector is the homography.
     let mut ata = nalgebra::SMatrix::<f64, 9, 9>::zeros();
     for (p, q) in pairs {

@@ -661,9 +661,10 @@ fn plane_fit(
     tolerance: f64,
     min_holes: usize,
 ) -> Result<Matrix3<f64>, String> {
+    let mut pairs: Vec<(Point2<f64>, Point2<f64>)> = Vec::with_capacity(model.len());
     loop {
-        let pairs: Vec<(Point2<f64>, Point2<f64>)> =
-            model.iter().zip(refined.iter()).filter_map(|(t, r)| r.map(|r| (*t, lens.undistort(r)))).collect();
+        pairs.clear();
+        pairs.extend(model.iter().zip(refined.iter()).filter_map(|(t, r)| r.map(|r| (*t, lens.undistort(r)))));
         if pairs.len() < min_holes {
             return Err(format!("only {} holes lie on one plane", pairs.len()));
         }
@@ -703,9 +704,10 @@ fn agreement_sigmas(model: &[Point2<f64>], refined: &[Option<Point2<f64>>], lens
     }
     let all: Vec<(Point2<f64>, Point2<f64>)> = pairs.iter().map(|(_, t, p)| (*t, *p)).collect();
     let Some(full) = fit_homography(&all) else { return out };
+    let mut others: Vec<(Point2<f64>, Point2<f64>)> = Vec::with_capacity(all.len());
     for (k, (i, t, p)) in pairs.iter().enumerate() {
-        let others: Vec<(Point2<f64>, Point2<f64>)> =
-            all.iter().enumerate().filter(|(j, _)| *j != k).map(|(_, pair)| *pair).collect();
+        others.clear();
+        others.extend(all.iter().enumerate().filter(|(j, _)| *j != k).map(|(_, pair)| *pair));
         let (Some(e), Some(r)) = (
             apply(&full, t).map(|q| (q - p).norm()),
             fit_homography(&others).and_then(|h| apply(&h, t)).map(|q| (q - p).norm()),
@@ -767,18 +769,32 @@ fn dark_quartile(grey: &GrayImage, centre: Point2<f64>, radius: f64) -> Option<f
         return None;
     }
     let (r, cx, cy) = (r as i64, centre.x.round() as i64, centre.y.round() as i64);
-    let mut values: Vec<u8> = Vec::with_capacity(((2 * r + 1) * (2 * r + 1)) as usize);
+    // A histogram, not a sorted copy: the darkest quarter's mean all the same.
+    let mut histogram = [0u32; 256];
+    let mut count = 0usize;
     for y in cy - r..=cy + r {
         for x in cx - r..=cx + r {
             let (dx, dy) = (x as f64 - centre.x, y as f64 - centre.y);
             if dx * dx + dy * dy <= radius * radius {
-                values.push(grey.get_pixel(x as u32, y as u32)[0]);
+                histogram[grey.get_pixel(x as u32, y as u32)[0] as usize] += 1;
+                count += 1;
             }
         }
     }
-    values.sort_unstable();
-    let quarter = (values.len() / 4).max(1);
-    Some(values[..quarter].iter().map(|&v| v as f64).sum::<f64>() / quarter as f64)
+    if count == 0 {
+        return None;
+    }
+    let quarter = (count / 4).max(1);
+    let (mut left, mut sum) = (quarter, 0.0);
+    for (value, &n) in histogram.iter().enumerate() {
+        let take = left.min(n as usize);
+        sum += (value * take) as f64;
+        left -= take;
+        if left == 0 {
+            break;
+        }
+    }
+    Some(sum / quarter as f64)
 }
 
 /// Distortion on the way in and out of the geometric stages.
