@@ -27,7 +27,8 @@ pub fn fit_homography(pairs: &[(Point2<f64>, Point2<f64>)]) -> Option<Matrix3<f6
     }
     // Centroid at the origin, mean distance sqrt(2): conditions the system.
     // (Two passes over the pairs, no copy: this runs many times per frame.)
-    let normaliser = |point: fn(&(Point2<f64>, Point2<f64>)) -> Point2<f64>| {
+    type Pick = fn(&(Point2<f64>, Point2<f64>)) -> Point2<f64>;
+    let normaliser = |point: Pick| {
         let n = pairs.len() as f64;
         let c = pairs.iter().fold(Vector2::zeros(), |s, p| s + point(p).coords) / n;
         let d = pairs.iter().map(|p| (point(p).coords - c).norm()).sum::<f64>() / n;
