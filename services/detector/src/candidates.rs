@@ -207,10 +207,7 @@ impl Touch {
 /// Hole candidates of a grey image (see [`crate::grey_of`]), highest contrast first.
 /// Never panics; an empty image or one without levels gives none.
 pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candidate> {
-    SCRATCH.with(|scratch| match scratch.try_borrow_mut() {
-        Ok(mut scratch) => find_with(grey, params, &mut scratch),
-        Err(_) => find_with(grey, params, &mut Scratch::default()),
-    })
+    crate::with_scratch(&SCRATCH, |scratch| find_with(grey, params, scratch))
 }
 
 /// The buffers of one search, kept by each thread between frames: a frame's

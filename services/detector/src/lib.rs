@@ -63,3 +63,16 @@ pub fn grey_of(image: &image::RgbImage) -> image::GrayImage {
     let data = image.as_raw().chunks_exact(3).map(grey_of_pixel).collect();
     image::GrayImage::from_raw(w, h, data).unwrap_or_else(|| image::GrayImage::new(w, h))
 }
+
+/// Runs `f` with this thread's `T` from `key`: buffers a stage keeps between
+/// frames instead of allocating them per call. A nested call on the same thread
+/// (none today) gets fresh buffers rather than a panic.
+pub(crate) fn with_scratch<T: Default + 'static, R>(
+    key: &'static std::thread::LocalKey<std::cell::RefCell<T>>,
+    f: impl FnOnce(&mut T) -> R,
+) -> R {
+    key.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut scratch) => f(&mut scratch),
+        Err(_) => f(&mut T::default()),
+    })
+}

@@ -201,9 +201,8 @@ fn fit(
     robust: bool,
     window_mm: [f64; 2],
 ) -> Option<Refined> {
-    FIT_SCRATCH.with(|scratch| match scratch.try_borrow_mut() {
-        Ok(mut scratch) => fit_with(grey, guess, mm_to_px, shape, params, robust, window_mm, &mut scratch),
-        Err(_) => fit_with(grey, guess, mm_to_px, shape, params, robust, window_mm, &mut FitScratch::default()),
+    crate::with_scratch(&FIT_SCRATCH, |scratch| {
+        fit_with(grey, guess, mm_to_px, shape, params, robust, window_mm, scratch)
     })
 }
 
