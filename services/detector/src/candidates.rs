@@ -3,9 +3,10 @@
 //! pixels around them by the contrast ratio r_C of the paper's equation (1).
 //!
 //! All levels are done in one pass, a component tree: the pixels are grouped into runs
-//! (stretches of one threshold band along a row), counting-sorted by band and added band
-//! after band to a union-find over 8-connected pixels that keeps each component's
-//! bounding box, area and coordinate sums. After each band, i.e. at each level, the
+//! (stretches of one threshold band along a row, each knowing the runs it touches in
+//! the rows above and below), counting-sorted by band and added band after band to a
+//! union-find over 8-connected runs that keeps each component's bounding box, area
+//! and coordinate sums. After each band, i.e. at each level, the
 //! components that grew and still fit the size range are scored. A component that
 //! outgrows `max_side` is marked dead once, so the large bright regions cost next to
 //! nothing. The same hole shows at several levels: of candidates closer than
@@ -186,22 +187,31 @@ impl Forest {
 struct Touch {
     root: Option<u32>,
     dead: bool,
-    /// The label seen last, to skip the runs of equal labels along a row.
-    last: u32,
 }
 
 impl Touch {
     #[inline]
     fn label(&mut self, forest: &mut Forest, l: u32) {
-        if l == NONE || l == self.last {
+        if l == NONE {
             return;
         }
-        self.last = l;
         match if l == DEAD { None } else { forest.find(l) } {
             Some(r) => self.root = Some(self.root.map_or(r, |t| forest.union(t, r))),
             None => self.dead = true,
         }
     }
+}
+
+/// A run: pixels x..x + len of row y, all in one threshold band.
+#[derive(Debug, Clone, Copy, Default)]
+struct Run {
+    x: u32,
+    y: u32,
+    len: u32,
+    /// The runs of the rows above and below that touch this one (8-connected), as
+    /// index ranges into the raster-ordered runs: runs of a row are sorted by x.
+    above: [u32; 2],
+    below: [u32; 2],
 }
 
 /// Hole candidates of a grey image (see [`crate::grey_of`]), highest contrast first.
@@ -210,21 +220,24 @@ pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candid
     crate::with_scratch(&SCRATCH, |scratch| find_with(grey, params, scratch))
 }
 
-/// The buffers of one search, kept by each thread between frames: a frame's
-/// labels alone are 4 bytes a pixel (1.2 MB at 640x480), and taking them fresh
-/// from the allocator each frame costs a page fault per 4 kB.
+/// The buffers of one search, kept by each thread between frames, so that a
+/// frame takes nothing from the allocator once the sizes have settled.
 #[derive(Default)]
 struct Scratch {
     rows: Vec<u16>,
     smooth: Vec<u8>,
-    banded: Vec<([u32; 3], u8)>,
-    runs: Vec<[u32; 3]>,
+    runs: Vec<Run>,
+    bands: Vec<u8>,
+    row_start: Vec<u32>,
+    at: Vec<u32>,
     start: Vec<u32>,
+    order: Vec<u32>,
     label: Vec<u32>,
     parent: Vec<u32>,
     blobs: Vec<Blob>,
     alive: Vec<(u32, u32)>,
     found: Vec<Candidate>,
+    grid: Vec<u32>,
 }
 
 thread_local! {
@@ -240,14 +253,20 @@ fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) 
     let padded = (w + 2).checked_mul(h + 2).filter(|&n| n < DEAD as usize);
     let pixels = grey.as_raw().get(..w * h).filter(|p| !p.is_empty());
     let (Some(&top), Some(padded), Some(pixels)) = (levels.last(), padded, pixels) else { return Vec::new() };
-    let Scratch { rows, smooth, banded, runs, start, label, parent, blobs, alive, found } = scratch;
+    let Scratch { rows, smooth, runs, bands, row_start, at, start, order, label, parent, blobs, alive, found, grid } =
+        scratch;
     smooth_3x3(pixels, w, h, rows, smooth);
     let smooth: &[u8] = smooth;
 
-    runs_by_band(smooth, w, &levels, top, banded, start, runs);
-    let stride = w + 2;
+    runs_of_rows(smooth, w, &levels, top, runs, bands, row_start, at);
+    if runs.len() >= DEAD as usize {
+        return Vec::new();
+    }
+    order_by_band(bands, levels.len(), start, order);
+    // The label of each run: its component's node (any node of it: `find` gives
+    // the root), DEAD, or NONE while its band is not reached.
     label.clear();
-    label.resize(padded, NONE);
+    label.resize(runs.len(), NONE);
     parent.clear();
     blobs.clear();
     let mut forest =
@@ -255,28 +274,31 @@ fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) 
     // Live roots, with the area they had when last scored.
     alive.clear();
     found.clear();
+    let runs: &[Run] = runs;
     for (b, &level) in levels.iter().enumerate() {
-        for &[x, y, len] in &runs[start[b] as usize..start[b + 1] as usize] {
-            // Labels live in a frame one pixel wider on each side: every pixel has 8 neighbours.
-            let (p, len) = ((y as usize + 1) * stride + x as usize + 1, len as usize);
-            let above = &label[p - stride - 1..p - stride + len + 1];
-            let below = &label[p + stride - 1..p + stride + len + 1];
-            let sides = [label[p - 1], label[p + len]];
-            let lowest = [above, below, &sides].map(|s| s.iter().fold(NONE, |a, &l| a.min(l)));
-            let lowest = lowest[0].min(lowest[1]).min(lowest[2]);
+        for &i in &order[start[b] as usize..start[b + 1] as usize] {
+            let run = runs[i as usize];
             // Union with every live component around; any dead one kills the lot.
-            let mut touch = Touch { root: None, dead: lowest == DEAD, last: NONE };
-            if lowest < DEAD {
-                for labels in [above, below, &sides] {
-                    for &l in labels {
-                        touch.label(&mut forest, l);
-                    }
-                }
+            // The order (above, below, left, right) is the pixels' raster order
+            // around the run, so the forest grows as a pixel-wise labelling would.
+            let mut touch = Touch { root: None, dead: false };
+            for &l in label[run.above[0] as usize..run.above[1] as usize]
+                .iter()
+                .chain(&label[run.below[0] as usize..run.below[1] as usize])
+            {
+                touch.label(&mut forest, l);
             }
-            let Touch { root, dead, .. } = touch;
-            let (fill, new) = forest.add(Blob::run(x, y, len as u32), root, dead);
+            let i = i as usize;
+            if i > 0 && runs[i - 1].y == run.y && runs[i - 1].x + runs[i - 1].len == run.x {
+                touch.label(&mut forest, label[i - 1]);
+            }
+            if i + 1 < runs.len() && runs[i + 1].y == run.y && run.x + run.len == runs[i + 1].x {
+                touch.label(&mut forest, label[i + 1]);
+            }
+            let Touch { root, dead } = touch;
+            let (fill, new) = forest.add(Blob::run(run.x, run.y, run.len), root, dead);
             alive.extend(new.map(|n| (n, 0)));
-            label[p..p + len].fill(fill);
+            label[i] = fill;
         }
         alive.retain_mut(|(node, seen)| {
             if forest.parent[*node as usize] != *node {
@@ -292,58 +314,99 @@ fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) 
     }
     *parent = forest.parent;
     *blobs = forest.blobs;
-    let kept = suppress_duplicates(found, label, stride, h + 2);
+    // The grid is all NONE between calls (each call clears what it marked), so
+    // it is only ever grown, never cleared as a whole.
+    if grid.len() < padded {
+        grid.resize(padded, NONE);
+    }
+    let kept = suppress_duplicates(found, &mut grid[..padded], w + 2, h + 2);
     tracing::debug!(candidates = kept.len());
     kept
 }
 
-/// Band b holds the grey values in [levels[b-1], levels[b]); the order of the pixels
-/// within a band does not matter. Returns the runs (maximal stretches of one band along a
-/// row, as [x, y, length]) grouped by band, in raster order within a band to keep the
-/// union-find's memory accesses local, and where each band's runs start.
-fn runs_by_band(
+/// The runs of the image in raster order (maximal stretches of one band along a row;
+/// band b holds the grey values in [levels[b-1], levels[b]), values from `top` on are
+/// band `levels.len()`, in no component), each run's band, where each row's runs
+/// start, and which runs of the rows above and below each run touches. The runs of
+/// a row cover it, so the runs touching pixels x0 - 1..=x1 of a neighbouring row are
+/// the index range from the run at x0 - 1 to the run at x1: `at` holds the run index
+/// of every pixel of the last two rows.
+#[allow(clippy::too_many_arguments)]
+fn runs_of_rows(
     smooth: &[u8],
     w: usize,
     levels: &[u8],
     top: u8,
-    banded: &mut Vec<([u32; 3], u8)>,
-    start: &mut Vec<u32>,
-    sorted: &mut Vec<[u32; 3]>,
+    runs: &mut Vec<Run>,
+    bands: &mut Vec<u8>,
+    row_start: &mut Vec<u32>,
+    at: &mut Vec<u32>,
 ) {
-    let bands = levels.len();
-    let mut band_of = [u8::MAX; 256];
+    let count = levels.len() as u8;
+    let mut band_of = [count; 256];
     for (v, band) in band_of.iter_mut().enumerate().take(top as usize) {
         *band = levels.partition_point(|&l| l as usize <= v) as u8;
     }
-    banded.clear();
+    runs.clear();
+    bands.clear();
+    row_start.clear();
+    at.clear();
+    at.resize(2 * w, 0);
+    let (mut prev, mut cur) = at.split_at_mut(w);
     for (y, row) in smooth.chunks_exact(w).enumerate() {
+        let first = runs.len();
+        row_start.push(first as u32);
         let (mut x0, mut band) = (0, band_of[row[0] as usize]);
         for (x, &v) in row.iter().enumerate().skip(1) {
-            if band_of[v as usize] != band {
-                if (band as usize) < bands {
-                    banded.push(([x0 as u32, y as u32, (x - x0) as u32], band));
-                }
-                (x0, band) = (x, band_of[v as usize]);
+            let b = band_of[v as usize];
+            if b != band {
+                runs.push(Run { x: x0 as u32, y: y as u32, len: (x - x0) as u32, ..Run::default() });
+                bands.push(band);
+                (x0, band) = (x, b);
             }
         }
-        if (band as usize) < bands {
-            banded.push(([x0 as u32, y as u32, (w - x0) as u32], band));
+        runs.push(Run { x: x0 as u32, y: y as u32, len: (w - x0) as u32, ..Run::default() });
+        bands.push(band);
+        for (i, run) in runs.iter().enumerate().skip(first) {
+            cur[run.x as usize..(run.x + run.len) as usize].fill(i as u32);
         }
+        if y > 0 {
+            let reach = |row: &[u32], run: &Run| {
+                let (x0, x1) = (run.x as usize, (run.x + run.len) as usize);
+                [row[x0.saturating_sub(1)], row[x1.min(w - 1)] + 1]
+            };
+            let before = row_start[y - 1] as usize;
+            let (older, this) = runs.split_at_mut(first);
+            for run in this.iter_mut() {
+                run.above = reach(prev, run);
+            }
+            for run in older[before..].iter_mut() {
+                run.below = reach(cur, run);
+            }
+        }
+        std::mem::swap(&mut prev, &mut cur);
     }
+    row_start.push(runs.len() as u32);
+}
+
+/// The runs' indices grouped by band (a counting sort, raster order within a band
+/// to keep the union-find's memory accesses local), and where each band starts.
+fn order_by_band(bands: &[u8], count: usize, start: &mut Vec<u32>, order: &mut Vec<u32>) {
     start.clear();
-    start.resize(bands + 1, 0);
-    for &(_, band) in banded.iter() {
+    start.resize(count + 1, 0);
+    // Band `count` (grey from the top level on) joins no component.
+    for &band in bands.iter().filter(|&&b| (b as usize) < count) {
         start[band as usize + 1] += 1;
     }
-    for b in 1..=bands {
+    for b in 1..=count {
         start[b] += start[b - 1];
     }
-    sorted.clear();
-    sorted.resize(banded.len(), [0u32; 3]);
+    order.clear();
     let mut next = [0u32; 256];
-    next[..bands].copy_from_slice(&start[..bands]);
-    for &(run, band) in banded.iter() {
-        sorted[next[band as usize] as usize] = run;
+    next[..count].copy_from_slice(&start[..count]);
+    order.resize(start[count] as usize, 0);
+    for (i, &band) in bands.iter().enumerate().filter(|(_, b)| (**b as usize) < count) {
+        order[next[band as usize] as usize] = i as u32;
         next[band as usize] += 1;
     }
 }
@@ -375,10 +438,10 @@ fn score(blob: &Blob, smooth: &[u8], w: usize, h: usize, level: u8, params: &Can
 }
 
 /// Keeps the highest contrast candidate of each group closer than
-/// [`DUPLICATE_RADIUS_PX`]; `grid` (padded image size, any content) marks kept centres.
+/// [`DUPLICATE_RADIUS_PX`]; `grid` (padded image size, all NONE, left so) marks kept
+/// centres.
 fn suppress_duplicates(found: &mut [Candidate], grid: &mut [u32], stride: usize, rows: usize) -> Vec<Candidate> {
     found.sort_by(|a, b| b.contrast.total_cmp(&a.contrast));
-    grid.fill(NONE);
     let reach = DUPLICATE_RADIUS_PX.ceil() as usize + 1;
     let mut kept: Vec<Candidate> = Vec::with_capacity(found.len());
     for &c in found.iter() {
@@ -393,6 +456,9 @@ fn suppress_duplicates(found: &mut [Candidate], grid: &mut [u32], stride: usize,
             grid[cy * stride + cx] = kept.len() as u32;
             kept.push(c);
         }
+    }
+    for c in &kept {
+        grid[(c.centre.y.round() as usize + 1) * stride + c.centre.x.round() as usize + 1] = NONE;
     }
     kept
 }
