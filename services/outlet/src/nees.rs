@@ -221,6 +221,9 @@ pub fn evaluate_frame(
         "blur": scene.sensor.blur_sigma, "off_axis_deg": view.map(|v| v.off_axis_deg),
         "distance_m": view.map(|v| v.distance_m),
         "mean_error_px": mean_error_px,
+        "sigma_px": inputs.pixel_sigmas,
+        "errors_xy_px": detection.holes.iter().zip(&frame.truth.holes)
+            .map(|(h, t)| [h.pixel.x - t.pixel[0], h.pixel.y - t.pixel[1]]).collect::<Vec<_>>(),
         "wall_normal": frame.truth.wall_plane.normal,
     });
     let mut add = |mode: &'static str, outcome: Result<OutletPose, PoseError>| {

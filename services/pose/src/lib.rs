@@ -20,7 +20,7 @@ mod lm;
 mod mono;
 mod robust;
 
-pub use robust::OUTLIER_CHI2;
+pub use robust::{COMMON_REFERENCE_PX_PER_MM, COMMON_SIGMA_FRACTION, OUTLIER_CHI2};
 
 pub use closed_form::closed_form_normal;
 

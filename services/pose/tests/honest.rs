@@ -75,7 +75,8 @@ impl Rng {
 
 /// Noisy views as the detector and stereo give them: every hole its own pixel
 /// sigma (0.08-0.5 px, known to the solver), a shift common to every hole of
-/// half their median sigma, the wall plane drawn from its own covariance.
+/// the share of their median sigma that the solver assumes for the outlet's
+/// size in the image, the wall plane drawn from its own covariance.
 /// Returns each mode's NEES values over `frames` views.
 fn noisy_views(frames: usize, seed: u64) -> [Vec<f64>; 3] {
     let mut rng = Rng(seed);
@@ -88,7 +89,14 @@ fn noisy_views(frames: usize, seed: u64) -> [Vec<f64>; 3] {
         let sigmas: Vec<f64> = m.iter().map(|_| rng.range(0.08, 0.5)).collect();
         let mut sorted = sigmas.clone();
         sorted.sort_by(f64::total_cmp);
-        let common_sigma = 0.5 * sorted[sorted.len() / 2];
+        // Pixels per mm of the face: the holes' spread in the image over theirs on the face.
+        let spread = |p: &[Point2<f64>]| {
+            let c = p.iter().fold(Vector2::zeros(), |a, q| a + q.coords) / p.len() as f64;
+            p.iter().map(|q| (q.coords - c).norm_squared()).sum::<f64>().sqrt()
+        };
+        let px_per_mm = spread(&clean) / spread(&m);
+        let common_sigma = outlet_pose::COMMON_SIGMA_FRACTION * sorted[sorted.len() / 2] * px_per_mm
+            / outlet_pose::COMMON_REFERENCE_PX_PER_MM;
         let common = Point2::new(common_sigma * rng.gauss(), common_sigma * rng.gauss()).coords;
         let px: Vec<Point2<f64>> = clean
             .iter()
