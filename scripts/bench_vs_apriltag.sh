@@ -154,8 +154,10 @@ echo "wall: outlet's own timing_ms.detect (Detector::detect, image decoded in me
 echo "CPU: outlet's process CPU time per image over a batch run ((N images - 1 image) / (N - 1), PNG decoding included)"
 echo "     vs AprilTag's thread CPU time of PGM reading + detection. d1 / d2: AprilTag's quad_decimate 1 / 2."
 echo
-echo "| resolution | N | outlet detect, wall | AprilTag d1 / d2, wall | outlet / AprilTag d1 / d2 | outlet per image, CPU, reading incl. | AprilTag d1 / d2 read + detect, CPU | outlet / AprilTag d1 / d2 | outlet found | AprilTag found d1, d2 |"
-echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+echo "tracking: outlet detect --track 30 over each image repeated 6 times (a still camera), the frames a window found."
+echo
+echo "| resolution | N | outlet detect, wall | outlet tracking, wall (windows found) | AprilTag d1 / d2, wall | outlet / AprilTag d1 / d2 | outlet tracking / AprilTag d1 / d2 | outlet per image, CPU, reading incl. | AprilTag d1 / d2 read + detect, CPU | outlet / AprilTag d1 / d2 | outlet found | AprilTag found d1, d2 |"
+echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
 printf '%s\n' "${ROWS[@]}"
 echo
 echo "load average at the end: $(cut -d' ' -f1-3 /proc/loadavg)"

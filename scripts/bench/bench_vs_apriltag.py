@@ -16,6 +16,11 @@
       hole matched by a reported hole of its kind within 3 px). CPU times are
       the children's user + system time (getrusage).
 
+      Tracking: REPS more runs of `OUTLET detect --track 30` over each image
+      repeated TRACK_FRAMES times in a row (a still camera; the first of each
+      is a camera jump, searched whole): per image the median detect ms of the
+      frames searched in a window, and how many frames a window found.
+
   bench_vs_apriltag.py summary LABEL OUTLET.json APRIL_D1.txt APRIL_D2.txt
       Print one table row (markdown) and a JSON line with the figures.
 """
@@ -56,8 +61,13 @@ def place(truth, width, height, size):
     print(best[0], best[1])
 
 
-def run_outlet(outlet, images):
-    cmd = ["taskset", "-c", "0", outlet, "detect", "--template", "2x2", "--json", *images]
+TRACK_FRAMES = 6
+
+
+def run_outlet(outlet, images, track=False):
+    cmd = ["taskset", "-c", "0", outlet, "detect", "--template", "2x2", "--json"]
+    cmd += ["--track", "30"] if track else []
+    cmd += images
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
@@ -111,6 +121,15 @@ def time_outlet(outlet, reps, images):
         wall, cpu, _ = run_outlet(outlet, images[:1])
         wall_one.append(wall)
         cpu_one.append(cpu)
+    tracked = [[] for _ in images]
+    windows = 0
+    for r in range(reps):
+        sequence = [img for img in images for _ in range(TRACK_FRAMES)]
+        _, _, records = run_outlet(outlet, sequence, track=True)
+        for k, rec in enumerate(records):
+            if rec.get("searched") == "window" and rec.get("found"):
+                tracked[k // TRACK_FRAMES].append(rec["timing_ms"]["detect"])
+                windows += r == 0
     json.dump(
         {
             "detect_ms": [statistics.median(t) for t in per_image],
@@ -121,6 +140,9 @@ def time_outlet(outlet, reps, images):
             "cpu_all_ms": statistics.median(cpu_all),
             "cpu_one_ms": statistics.median(cpu_one),
             "n": len(images),
+            "track_ms": [statistics.median(t) for t in tracked if t],
+            "track_windows": windows,
+            "track_frames": len(images) * (TRACK_FRAMES - 1),
         },
         sys.stdout,
     )
@@ -157,6 +179,8 @@ def summary(label, outlet_json, d1, d2):
     # PNG, grey conversion, detection and the JSON line; startup and template cancel.
     f["outlet_batch_wall_ms"] = (o["wall_all_ms"] - o["wall_one_ms"]) / (n - 1)
     f["outlet_batch_cpu_ms"] = (o["cpu_all_ms"] - o["cpu_one_ms"]) / (n - 1)
+    f["outlet_track_ms"] = med(o["track_ms"]) if o["track_ms"] else float("nan")
+    f["outlet_track_windows"] = f"{o['track_windows']}/{o['track_frames']}"
     f["outlet_found"] = sum(o["found"])
     f["outlet_right"] = sum(o["right"])
     for d in (1, 2):
@@ -168,9 +192,12 @@ def summary(label, outlet_json, d1, d2):
         f[f"april_d{d}_other_detections"] = sum(max(r["ndet"] - r["found"], 0) for r in rows)
         f[f"ratio_wall_d{d}"] = f["outlet_detect_ms"] / f[f"april_d{d}_detect_ms"]
         f[f"ratio_cpu_d{d}"] = f["outlet_batch_cpu_ms"] / f[f"april_d{d}_read_detect_cpu_ms"]
+        f[f"ratio_track_d{d}"] = f["outlet_track_ms"] / f[f"april_d{d}_detect_ms"]
     print(
-        f"| {label} | {n} | {f['outlet_detect_ms']:.2f} | {f['april_d1_detect_ms']:.2f} / "
+        f"| {label} | {n} | {f['outlet_detect_ms']:.2f} | {f['outlet_track_ms']:.2f} "
+        f"({f['outlet_track_windows']}) | {f['april_d1_detect_ms']:.2f} / "
         f"{f['april_d2_detect_ms']:.2f} | **{f['ratio_wall_d1']:.2f}** / **{f['ratio_wall_d2']:.2f}** | "
+        f"**{f['ratio_track_d1']:.2f}** / **{f['ratio_track_d2']:.2f}** | "
         f"{f['outlet_batch_cpu_ms']:.2f} | {f['april_d1_read_detect_cpu_ms']:.2f} / "
         f"{f['april_d2_read_detect_cpu_ms']:.2f} | **{f['ratio_cpu_d1']:.2f}** / **{f['ratio_cpu_d2']:.2f}** | "
         f"{f['outlet_found']}/{n} ({f['outlet_right']} right) | "

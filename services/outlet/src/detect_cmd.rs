@@ -10,6 +10,7 @@ use outlet_detector::descriptor::DescriptorParams;
 use outlet_detector::detect::{Detection, Detector, DetectorParams};
 use outlet_detector::grey_of;
 use outlet_detector::template::{TrainingImage, train_template_tilted};
+use outlet_detector::track::{Searched, TrackParams, Tracker};
 use outlet_normal::{PlaneParams, fit_wall_plane};
 use outlet_pose::{OutletPose, PoseError, solve_mono, solve_normal, solve_plane};
 use outlet_protocol::camera_info::read_camera_info;
@@ -51,8 +52,21 @@ pub struct DetectArgs {
     /// image, a folder for several.
     #[arg(long)]
     pub annotate: Option<PathBuf>,
+    /// Take the images, in the order given, as consecutive frames of one camera
+    /// at this many frames per second, tracked as `outlet serve detector` does:
+    /// after a frame with an outlet, the next is searched first in a window
+    /// around it. Each record then says where it was searched ("searched").
+    #[arg(long, value_name = "FPS")]
+    pub track: Option<f64>,
     /// Images to search.
     pub images: Vec<PathBuf>,
+}
+
+/// The trackers of `--track`, one per template, and the frame clock.
+struct Tracking {
+    fps: f64,
+    frame: u64,
+    trackers: HashMap<String, Tracker>,
 }
 
 /// One image to process, with what goes with it.
@@ -144,13 +158,25 @@ pub fn detect(args: DetectArgs) -> Result<()> {
             })
             .collect(),
     };
+    let mut tracking = match args.track {
+        Some(fps) if !(fps.is_finite() && fps > 0.0) => bail!("--track {fps}: frames per second must be positive"),
+        Some(fps) => Some(Tracking { fps, frame: 0, trackers: HashMap::new() }),
+        None => None,
+    };
     let mut detectors = Detectors::default();
     let mut processed = 0;
     let stdout = std::io::stdout();
     let several = jobs.len() > 1;
     for job in &jobs {
         let record = match job {
-            Ok(job) => match run_one(job, &mut detectors, args.annotate.as_deref(), several, &args.model_error) {
+            Ok(job) => match run_one(
+                job,
+                &mut detectors,
+                tracking.as_mut(),
+                args.annotate.as_deref(),
+                several,
+                &args.model_error,
+            ) {
                 Ok(record) => {
                     processed += 1;
                     record
@@ -175,6 +201,7 @@ pub fn detect(args: DetectArgs) -> Result<()> {
 fn run_one(
     job: &Job,
     detectors: &mut Detectors,
+    tracking: Option<&mut Tracking>,
     annotate: Option<&Path>,
     several: bool,
     model_error: &outlet::ModelError,
@@ -198,7 +225,22 @@ fn run_one(
     }
     let detector = detectors.get(&job.template)?;
     let t = Instant::now();
-    let report = detector.detect(&image, camera.as_ref());
+    let (report, searched) = match tracking {
+        Some(tracking) => {
+            let time_s = tracking.frame as f64 / tracking.fps;
+            tracking.frame += 1;
+            let tracker =
+                tracking.trackers.entry(job.template.clone()).or_insert_with(|| Tracker::new(TrackParams::default()));
+            let tracked = tracker.detect_grey(detector, &grey_of(&image), camera.as_ref(), time_s);
+            let searched = match tracked.searched {
+                Searched::Window(_) => "window",
+                Searched::FullFrame { after_window: false } => "full_frame",
+                Searched::FullFrame { after_window: true } => "full_frame_after_window",
+            };
+            (tracked.report, Some(searched))
+        }
+        None => (detector.detect(&image, camera.as_ref()), None),
+    };
     let detect_ms = t.elapsed().as_secs_f64() * 1e3;
     if let Some(path) = annotate {
         let out = if several {
@@ -265,7 +307,7 @@ fn run_one(
         v["mode"] = json!(p.mode.as_str());
         v
     });
-    Ok(json!({
+    let mut record = json!({
         "image": job.image.display().to_string(),
         "found": report.detection.is_some(),
         "template": job.template,
@@ -273,7 +315,11 @@ fn run_one(
         "pose": pose_json,
         "pose_status": pose_status.or(pose.as_ref().map(|_| "ok")),
         "timing_ms": {"detect": detect_ms, "pose": pose_ms},
-    }))
+    });
+    if let Some(searched) = searched {
+        record["searched"] = json!(searched);
+    }
+    Ok(record)
 }
 
 /// The wall normal given on the command line, "NX,NY,NZ".

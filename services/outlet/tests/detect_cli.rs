@@ -337,3 +337,41 @@ fn an_approach_keeps_the_outlet_found_to_12_cm_with_every_camera() {
     };
     assert!(pitch("640x480", 0.12) > 55.0 && pitch("1920x1080", 0.12) > 120.0, "the holes did grow");
 }
+
+#[test]
+fn detect_track_searches_a_window_after_a_found_frame_with_the_same_holes() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let seed = frontal_seed("white2x2");
+    render(dir.path(), "white2x2", 1, seed);
+    let image = image_of(dir.path(), "white2x2_0000");
+    let negative = tempfile::tempdir().expect("tmp");
+    render(negative.path(), "negative", 1, 3);
+    let bare = image_of(negative.path(), "negative_0000");
+    // A still camera on the outlet, then a bare wall, then the outlet again.
+    let frames = [&image, &image, &image, &bare, &image];
+    let mut args = vec!["detect", "--template", "2x2", "--json", "--track", "30"];
+    args.extend(frames.iter().map(|s| s.as_str()));
+    let out = outlet(&args);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let records = lines(&out);
+    let searched: Vec<&str> = records.iter().map(|r| r["searched"].as_str().expect("searched")).collect();
+    assert_eq!(searched, ["full_frame", "window", "window", "full_frame_after_window", "full_frame"]);
+    let found: Vec<bool> = records.iter().map(|r| r["found"].as_bool().expect("found")).collect();
+    assert_eq!(found, [true, true, true, false, true]);
+    let holes = |r: &Value| -> Vec<[f64; 2]> {
+        r["holes"]
+            .as_array()
+            .expect("holes")
+            .iter()
+            .map(|h| [h["pixel"][0].as_f64().unwrap_or(f64::NAN), h["pixel"][1].as_f64().unwrap_or(f64::NAN)])
+            .collect()
+    };
+    let whole = holes(&records[0]);
+    for r in [&records[1], &records[2], &records[4]] {
+        for (a, b) in whole.iter().zip(holes(r)) {
+            assert!((a[0] - b[0]).hypot(a[1] - b[1]) < 0.05, "a window's hole {b:?} against the whole frame's {a:?}");
+        }
+    }
+    let bad = outlet(&["detect", "--template", "2x2", "--track", "0", &image]);
+    assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("--track 0"));
+}
