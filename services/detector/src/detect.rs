@@ -665,10 +665,6 @@ impl Detector {
     }
 }
 
-/// The homography through the fitted holes (`refined`, template order), after
-/// dropping one by one, worst first, the holes further than `tolerance` pixels
-/// from it: a fit caught by a glint or a dark spot. `Err` when fewer than
-/// `min_holes` remain.
 /// A fitted hole's sigma is at least this share of the median sigma of the
 /// outlet's fitted holes. Rendered scenes (2100 frames), |error|^2 / 2 sigma^2
 /// (1 on average if honest) by the hole's sigma over that median: below 0.5, 2.5
@@ -676,6 +672,10 @@ impl Detector {
 /// 0.8 rather than 0.7 trims the worst holes' NEES by a little more.
 pub const MIN_SIGMA_OF_MEDIAN: f64 = 0.8;
 
+/// The homography through the fitted holes (`refined`, template order), after
+/// dropping one by one, worst first, the holes further than `tolerance` pixels
+/// from it: a fit caught by a glint or a dark spot. `Err` when fewer than
+/// `min_holes` remain.
 fn plane_fit(
     model: &[Point2<f64>],
     refined: &mut [Option<Point2<f64>>],
