@@ -223,11 +223,26 @@ impl Detector {
             };
         }
         let crop = image::imageops::crop_imm(grey, x, y, cw, ch).to_image();
+        self.detect_crop(&crop, [x, y], [w, h], camera)
+    }
+
+    /// [`Self::detect_window`] on the window's pixels alone: `crop` is the part
+    /// of a `frame_size` frame whose top left pixel is `origin`. A caller that
+    /// converts frames to grey itself converts only the window (tracking).
+    pub fn detect_crop(
+        &self,
+        crop: &GrayImage,
+        origin: [u32; 2],
+        frame_size: [u32; 2],
+        camera: Option<&CameraModel>,
+    ) -> DetectReport {
+        let ([x, y], [w, h]) = (origin, frame_size);
+        let (cw, ch) = crop.dimensions();
         // Cropping moves the principal point only: distortion is a function of
         // the normalised ray, which cropping does not change.
         let camera =
             camera.map(|c| CameraModel { width: cw, height: ch, cx: c.cx - x as f64, cy: c.cy - y as f64, ..*c });
-        let mut report = self.detect_sized(&crop, camera.as_ref(), w.max(h));
+        let mut report = self.detect_sized(crop, camera.as_ref(), w.max(h));
         let (dx, dy) = (x as f64, y as f64);
         if let Some(d) = report.detection.as_mut() {
             for hole in &mut d.holes {

@@ -6,7 +6,7 @@
 //! ([`Detector::detect_window`]), so tracking can miss but cannot add a wrong
 //! outlet that a full-frame search would not have given.
 
-use crate::detect::{DetectReport, Detector};
+use crate::detect::{DetectReport, Detector, StageTimes};
 use image::GrayImage;
 use nalgebra::Point2;
 use outlet_protocol::CameraModel;
@@ -85,24 +85,66 @@ impl Tracker {
         camera: Option<&CameraModel>,
         time_s: f64,
     ) -> Tracked {
-        let window = self.window(grey.width(), grey.height(), time_s);
-        let mut window_times = None;
-        if let Some(window) = window {
-            let report = detector.detect_window(grey, camera, window);
-            if report.detection.is_some() {
-                self.windows_since_full += 1;
-                self.remember(&report, time_s);
-                return Tracked { report, searched: Searched::Window(window) };
+        let size = [grey.width(), grey.height()];
+        let mut tried = None;
+        if let Some(w) = self.window_for(size, time_s) {
+            let crop = image::imageops::crop_imm(grey, w[0], w[1], w[2], w[3]).to_image();
+            match self.search_window(detector, &crop, w, size, camera, time_s) {
+                Ok(tracked) => return tracked,
+                Err(times) => tried = Some(times),
             }
-            window_times = Some(report.times);
         }
+        self.search_full_frame(detector, grey, camera, time_s, tried)
+    }
+
+    /// The window (`[x, y, width, height]`) in which a frame of `size` captured
+    /// at `time_s` is to be searched first, or None for the whole frame. The
+    /// steps of [`Self::detect_grey`] for a caller that makes the grey image
+    /// itself and, while tracking, only of the window: this, then
+    /// [`Self::search_window`] with the window's grey pixels, then (when that
+    /// fails, or without a window) [`Self::search_full_frame`].
+    pub fn window_for(&mut self, size: [u32; 2], time_s: f64) -> Option<[u32; 4]> {
+        self.window(size[0], size[1], time_s)
+    }
+
+    /// Searches `crop`, the grey pixels of `window` of a frame of `frame_size`:
+    /// the tracked result when the outlet is found there, else the stages'
+    /// times spent (to add to the whole frame's).
+    pub fn search_window(
+        &mut self,
+        detector: &Detector,
+        crop: &GrayImage,
+        window: [u32; 4],
+        frame_size: [u32; 2],
+        camera: Option<&CameraModel>,
+        time_s: f64,
+    ) -> Result<Tracked, StageTimes> {
+        let report = detector.detect_crop(crop, [window[0], window[1]], frame_size, camera);
+        if report.detection.is_none() {
+            return Err(report.times);
+        }
+        self.windows_since_full += 1;
+        self.remember(&report, time_s);
+        Ok(Tracked { report, searched: Searched::Window(window) })
+    }
+
+    /// Searches the whole frame; `after_window` holds the times of a window
+    /// searched first in vain, if one was.
+    pub fn search_full_frame(
+        &mut self,
+        detector: &Detector,
+        grey: &GrayImage,
+        camera: Option<&CameraModel>,
+        time_s: f64,
+        after_window: Option<StageTimes>,
+    ) -> Tracked {
         let mut report = detector.detect_grey(grey, camera);
-        if let Some(t) = window_times {
+        if let Some(t) = after_window {
             report.times += t;
         }
         self.windows_since_full = 0;
         self.remember(&report, time_s);
-        Tracked { report, searched: Searched::FullFrame { after_window: window.is_some() } }
+        Tracked { report, searched: Searched::FullFrame { after_window: after_window.is_some() } }
     }
 
     fn remember(&mut self, report: &DetectReport, time_s: f64) {

@@ -40,21 +40,36 @@ pub fn run(rt: &Runtime) -> Result<()> {
             if let Some(sample) = newest(&subscriber, &mut health) {
                 let started = Instant::now();
                 let header = *sample.user_header();
-                let checked =
-                    header.validate(sample.payload().len()).map_err(|e| e.to_string()).and_then(|(format, camera)| {
-                        grey_of_frame(&header, format, sample.payload(), std::mem::take(&mut spare))
-                            .map(|grey| (grey, camera))
-                            .ok_or_else(|| format!("frame {}: pixels do not fill the image", header.frame_id))
-                    });
-                // The grey image is all the detector reads: give the shared
-                // memory back before detecting.
-                drop(sample);
-                match checked {
-                    Ok((grey, camera)) => {
-                        let time_s = header.capture_time_ns as f64 * 1e-9;
-                        let report = tracker.detect_grey(&detector, &grey, Some(&camera), time_s).report;
+                let frame_id = header.frame_id;
+                let not_filled = || format!("frame {frame_id}: pixels do not fill the image");
+                let valid = header.validate(sample.payload().len()).map_err(|e| e.to_string());
+                let outcome = valid.and_then(|(format, camera)| {
+                    let time_s = header.capture_time_ns as f64 * 1e-9;
+                    let size = [header.width, header.height];
+                    let grey = |region, spare| grey_of_frame(&header, format, sample.payload(), region, spare);
+                    // While tracking, only the window's pixels are made grey, and the
+                    // frame is held for that search alone (about a millisecond).
+                    let mut tried = None;
+                    if let Some(window) = tracker.window_for(size, time_s) {
+                        let crop = grey(window, std::mem::take(&mut spare)).ok_or_else(not_filled)?;
+                        let found = tracker.search_window(&detector, &crop, window, size, Some(&camera), time_s);
+                        spare = crop.into_raw();
+                        match found {
+                            Ok(tracked) => return Ok((tracked.report, camera)),
+                            Err(times) => tried = Some(times),
+                        }
+                    }
+                    let whole = grey([0, 0, size[0], size[1]], std::mem::take(&mut spare)).ok_or_else(not_filled)?;
+                    // The grey image is all the detector reads: give the shared
+                    // memory back before the whole frame's search.
+                    drop(sample);
+                    let tracked = tracker.search_full_frame(&detector, &whole, Some(&camera), time_s, tried);
+                    spare = whole.into_raw();
+                    Ok((tracked.report, camera))
+                });
+                match outcome {
+                    Ok((report, camera)) => {
                         let detect_ms = started.elapsed().as_secs_f64() * 1e3;
-                        spare = grey.into_raw();
                         let msg = detection_msg(&header, &camera, report.detection.as_ref(), detect_ms);
                         if output.send(msg) {
                             health.output(header.capture_time_ns, detect_ms);
@@ -62,7 +77,7 @@ pub fn run(rt: &Runtime) -> Result<()> {
                     }
                     Err(reason) => {
                         health.rejected(&reason);
-                        tracing::warn!(frame = header.frame_id, "frame rejected: {reason}");
+                        tracing::warn!(frame = frame_id, "frame rejected: {reason}");
                     }
                 }
             }
@@ -75,29 +90,42 @@ pub fn run(rt: &Runtime) -> Result<()> {
 }
 
 /// The detector's grey image ([`outlet_detector::grey_of`]: the brightest
-/// channel) straight from a frame's pixels (any stride), without a colour copy,
-/// into `grey`'s memory (the last frame's); None when the payload is shorter than
-/// the header says.
+/// channel) of `region` (`[x, y, width, height]`, clipped to the frame) straight
+/// from a frame's pixels (any stride), without a colour copy, into `grey`'s
+/// memory (the last frame's); None when the payload is shorter than the header
+/// says or the region is empty.
 fn grey_of_frame(
     header: &FrameHeader,
     format: PixelFormat,
     pixels: &[u8],
+    region: [u32; 4],
     mut grey: Vec<u8>,
 ) -> Option<image::GrayImage> {
     let (w, h, stride) = (header.width as usize, header.height as usize, header.stride as usize);
-    let row_bytes = w * format.channels();
+    let channels = format.channels();
+    let [x, y] = [(region[0] as usize).min(w), (region[1] as usize).min(h)];
+    let [rw, rh] = [(region[2] as usize).min(w - x), (region[3] as usize).min(h - y)];
+    if rw == 0 || rh == 0 {
+        return None;
+    }
     grey.clear();
-    grey.reserve(w * h);
-    for row in pixels.chunks(stride.max(1)).take(h) {
-        let row = row.get(..row_bytes)?;
+    grey.resize(rw * rh, 0);
+    for (out, row) in grey.chunks_exact_mut(rw).zip(pixels.chunks(stride.max(1)).skip(y).take(rh)) {
+        let row = row.get(x * channels..(x + rw) * channels)?;
         match format {
-            PixelFormat::Mono8 => grey.extend_from_slice(row),
+            PixelFormat::Mono8 => out.copy_from_slice(row),
             PixelFormat::Rgb8 | PixelFormat::Bgr8 => {
-                grey.extend(row.chunks_exact(3).map(outlet_detector::grey_of_pixel))
+                for (g, p) in out.iter_mut().zip(row.chunks_exact(3)) {
+                    *g = outlet_detector::grey_of_pixel(p);
+                }
             }
         }
     }
-    image::GrayImage::from_raw(header.width, header.height, grey)
+    // Fewer rows than the region: the payload ended early.
+    if pixels.len() < (y + rh - 1) * stride + (x + rw) * channels {
+        return None;
+    }
+    image::GrayImage::from_raw(rw as u32, rh as u32, grey)
 }
 
 fn detection_msg(
@@ -153,11 +181,21 @@ mod tests {
             .chunks(12)
             .flat_map(|row| row[..9].chunks_exact(3).map(|p| *p.iter().max().unwrap_or(&0)).collect::<Vec<_>>())
             .collect();
-        let fresh = grey_of_frame(&header, PixelFormat::Bgr8, &pixels, Vec::new()).expect("grey");
+        let whole = [0, 0, 3, 2];
+        let fresh = grey_of_frame(&header, PixelFormat::Bgr8, &pixels, whole, Vec::new()).expect("grey");
         assert_eq!(fresh.as_raw(), &expected);
         // The last frame's memory, larger and full of other values, gives the same.
-        let reused = grey_of_frame(&header, PixelFormat::Bgr8, &pixels, vec![7; 100]).expect("grey");
+        let reused = grey_of_frame(&header, PixelFormat::Bgr8, &pixels, whole, vec![7; 100]).expect("grey");
         assert_eq!(reused.as_raw(), &expected);
-        assert_eq!(grey_of_frame(&header, PixelFormat::Bgr8, &pixels[..20], Vec::new()), None, "a short payload");
+        // A tracking window: the same grey values, of its pixels only.
+        let window = grey_of_frame(&header, PixelFormat::Bgr8, &pixels, [1, 1, 5, 5], Vec::new()).expect("grey");
+        assert_eq!(window.dimensions(), (2, 1), "clipped to the frame");
+        assert_eq!(window.as_raw(), &expected[4..6]);
+        assert_eq!(grey_of_frame(&header, PixelFormat::Bgr8, &pixels, [3, 0, 2, 2], Vec::new()), None, "empty");
+        assert_eq!(
+            grey_of_frame(&header, PixelFormat::Bgr8, &pixels[..20], whole, Vec::new()),
+            None,
+            "a short payload"
+        );
     }
 }
