@@ -12,8 +12,10 @@ of it here), so these are fair new views of the outlet, at any distance and angl
 
 SCALE resizes the camera (0.5: 784x535, focal 737 px). Writes OUT/vNNN.png,
 OUT/camera.yaml, OUT/manifest.jsonl for `outlet detect --batch` (template
-`willow.tpl`: train it with `outlet train`), and OUT/truth.json (hole pixels in
-template order, distance, off-axis angle, roll).
+`willow.tpl`: train it with `outlet train`), OUT/truth.json (hole pixels in
+template order, distance, off-axis angle, roll), and OUT/vNNN.labels.json, so that
+`outlet eval --photos OUT --views 0 --template 2x2` judges any template on the views
+(found, wrong, and the holes the descriptor classed right).
 """
 import json, math, re, sys
 from pathlib import Path
@@ -89,6 +91,10 @@ def main():
             manifest.write(json.dumps({"image": name, "camera": "camera.yaml", "template": "willow.tpl"}) + "\n")
             rows.append({"image": name, "distance_m": distance, "off_axis_deg": math.degrees(off_axis),
                          "roll_deg": math.degrees(roll), "holes": seen.tolist()})
+            # The view as a labelled photograph, for `outlet eval --photos OUT --views 0`.
+            view_labels = {"image": name, "template": labels.get("template", "2x2"),
+                           "holes": [{**h, "pixel": p} for h, p in zip(labels["holes"], seen.tolist())]}
+            (out / f"v{i:03d}.labels.json").write_text(json.dumps(view_labels))
     (out / "truth.json").write_text(json.dumps(rows))
 
 
