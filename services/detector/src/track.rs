@@ -97,16 +97,6 @@ impl Tracker {
         self.search_full_frame(detector, grey, camera, time_s, tried)
     }
 
-    /// The window (`[x, y, width, height]`) in which a frame of `size` captured
-    /// at `time_s` is to be searched first, or None for the whole frame. The
-    /// steps of [`Self::detect_grey`] for a caller that makes the grey image
-    /// itself and, while tracking, only of the window: this, then
-    /// [`Self::search_window`] with the window's grey pixels, then (when that
-    /// fails, or without a window) [`Self::search_full_frame`].
-    pub fn window_for(&mut self, size: [u32; 2], time_s: f64) -> Option<[u32; 4]> {
-        self.window(size[0], size[1], time_s)
-    }
-
     /// Searches `crop`, the grey pixels of `window` of a frame of `frame_size`:
     /// the tracked result when the outlet is found there, else the stages'
     /// times spent (to add to the whole frame's).
@@ -151,8 +141,14 @@ impl Tracker {
         self.last = report.detection.as_ref().map(|d| (d.holes.iter().map(|h| h.pixel).collect(), time_s));
     }
 
-    /// The window to search first, if tracking applies to this frame.
-    fn window(&mut self, width: u32, height: u32, time_s: f64) -> Option<[u32; 4]> {
+    /// The window (`[x, y, width, height]`) in which a frame of `size` captured
+    /// at `time_s` is to be searched first, or None for the whole frame. The
+    /// steps of [`Self::detect_grey`] for a caller that makes the grey image
+    /// itself and, while tracking, only of the window: this, then
+    /// [`Self::search_window`] with the window's grey pixels, then (when that
+    /// fails, or without a window) [`Self::search_full_frame`].
+    pub fn window_for(&mut self, size: [u32; 2], time_s: f64) -> Option<[u32; 4]> {
+        let [width, height] = size;
         let p = &self.params;
         if p.full_frame_every <= 1 || self.windows_since_full + 1 >= p.full_frame_every {
             return None;
@@ -198,19 +194,19 @@ mod tests {
 
     #[test]
     fn the_window_holds_the_last_holes_with_a_margin_growing_with_time() {
-        let w = tracking(&HOLES, 0.0).window(640, 480, 1.0 / 30.0).expect("a window");
+        let w = tracking(&HOLES, 0.0).window_for([640, 480], 1.0 / 30.0).expect("a window");
         let [x, y, width, height] = w.map(f64::from);
         for (u, v) in HOLES {
             assert!(u - x >= 18.0 && x + width - u >= 18.0 && v - y >= 18.0 && y + height - v >= 18.0, "{w:?}");
         }
-        let later = tracking(&HOLES, 0.0).window(640, 480, 0.2).expect("a window");
+        let later = tracking(&HOLES, 0.0).window_for([640, 480], 0.2).expect("a window");
         assert!(later[2] > w[2] && later[3] > w[3], "{later:?} against {w:?}");
     }
 
     #[test]
     fn a_window_is_clipped_to_the_image() {
         let edge = [(620.0, 20.0), (639.0, 20.0), (630.0, 60.0)];
-        let [x, y, width, height] = tracking(&edge, 0.0).window(640, 480, 0.01).expect("a window");
+        let [x, y, width, height] = tracking(&edge, 0.0).window_for([640, 480], 0.01).expect("a window");
         assert!(x + width <= 640 && y + height <= 480 && width > 0 && height > 0);
     }
 
@@ -218,18 +214,18 @@ mod tests {
     fn old_or_backward_or_broken_times_and_every_nth_frame_search_the_whole_frame() {
         for time in [0.6, -0.1, f64::NAN, f64::INFINITY] {
             let mut t = tracking(&HOLES, 0.0);
-            assert_eq!(t.window(640, 480, time), None, "at {time}");
+            assert_eq!(t.window_for([640, 480], time), None, "at {time}");
             assert!(t.last.is_none(), "the last outlet is forgotten at {time}");
         }
         let mut t = tracking(&HOLES, 0.0);
         t.windows_since_full = TrackParams::default().full_frame_every - 1;
-        assert_eq!(t.window(640, 480, 0.01), None, "the whole frame is due");
+        assert_eq!(t.window_for([640, 480], 0.01), None, "the whole frame is due");
         let never = TrackParams { full_frame_every: 1, ..TrackParams::default() };
         let mut t = Tracker { params: never, ..tracking(&HOLES, 0.0) };
-        assert_eq!(t.window(640, 480, 0.01), None, "tracking off");
+        assert_eq!(t.window_for([640, 480], 0.01), None, "tracking off");
         // An outlet that fills most of the frame: nothing to save.
         let large = [(10.0, 10.0), (630.0, 10.0), (320.0, 470.0)];
-        assert_eq!(tracking(&large, 0.0).window(640, 480, 0.01), None);
-        assert_eq!(Tracker::default().window(640, 480, 0.0), None, "no outlet yet");
+        assert_eq!(tracking(&large, 0.0).window_for([640, 480], 0.01), None);
+        assert_eq!(Tracker::default().window_for([640, 480], 0.0), None, "no outlet yet");
     }
 }
