@@ -116,6 +116,12 @@ struct HoleLine {
     position_m: [f64; 3],
     sigma_mm: [f64; 3],
     error_mm: Option<f64>,
+    /// The error along the true outlet's normal and across it, in its face plane
+    /// (mm), with the standard deviations the covariance gives those directions:
+    /// a controller approaches along the normal and inserts across it.
+    error_normal_mm: Option<f64>,
+    error_in_plane_mm: Option<f64>,
+    sigma_normal_mm: Option<f64>,
     /// `sqrt(e^T C^-1 e)`: the error in the hole's own standard deviations.
     error_sigmas: Option<f64>,
     /// Its pixel was not used (the pose service found it inconsistent).
@@ -413,6 +419,10 @@ fn result_line(poses: &HolePoses, truth: Option<&TruthMsg>, detect_ms: Option<f6
             let covariance = nalgebra::Matrix3::from_fn(|r, c| h.covariance_m2[r][c]);
             let error_sigmas =
                 error.map(|e| covariance.cholesky().map_or(f64::INFINITY, |l| e.dot(&l.solve(&e)).max(0.0).sqrt()));
+            // The outlet's normal: the third column of its rotation (row-major).
+            let normal = truth_holes.map(|t| nalgebra::Vector3::new(t.rotation[2], t.rotation[5], t.rotation[8]));
+            let along = error.zip(normal).map(|(e, n)| e.dot(&n));
+            let across = error.zip(along).map(|(e, a)| (e.norm_squared() - a * a).max(0.0).sqrt());
             HoleLine {
                 kind: match h.kind {
                     outlet_protocol::HoleKind::Power => "power",
@@ -421,6 +431,9 @@ fn result_line(poses: &HolePoses, truth: Option<&TruthMsg>, detect_ms: Option<f6
                 position_m: h.position_m,
                 sigma_mm: h.std_dev_m().map(|s| s * 1e3),
                 error_mm: error.map(|e| e.norm() * 1e3),
+                error_normal_mm: along.map(|a| a * 1e3),
+                error_in_plane_mm: across.map(|a| a * 1e3),
+                sigma_normal_mm: normal.map(|n| n.dot(&(covariance * n)).max(0.0).sqrt() * 1e3),
                 error_sigmas,
                 outlier: h.outlier,
             }
