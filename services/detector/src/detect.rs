@@ -36,6 +36,12 @@ pub struct DetectorParams {
     /// sample is within this distance of their nearest background sample taken
     /// as holes (PCA distance; 0 = no second look).
     pub second_look_margin: f32,
+    /// When the second look finds nothing either, a third: the candidates it
+    /// still left in the background are classified again this many ladder
+    /// steps either side of the scales their size implies, and count as holes
+    /// by the same margin (0 = no third look). See
+    /// [`crate::descriptor::OneWayDescriptor::classify_candidate_spread`].
+    pub third_look_spread: u32,
     /// For outlets whose power holes map onto themselves under a half turn: how
     /// much darker (relative) the found ground holes must be than the places a
     /// half-turned outlet would put them.
@@ -82,6 +88,7 @@ impl Default for DetectorParams {
             max_plane_px: 1.2,
             max_plane_mm: 0.8,
             second_look_margin: 0.25,
+            third_look_spread: 1,
             ground_contrast: 0.05,
             ground_decides: 0.2,
             pyramid_min_px: 640,
@@ -303,28 +310,48 @@ impl Detector {
             // background (shadowed or washed-out holes) count as their nearer hole
             // class. Hashing, its significance test and the plane check still
             // stand between them and a false alarm.
-            let relaxed: Vec<(Candidate, Class)> = candidates
-                .iter()
-                .zip(&classifications)
-                .map(|(c, k)| {
-                    let [p, g, b] = k.class_distances;
-                    let class = match k.class {
-                        Class::Background if p.min(g) < b + self.params.second_look_margin => {
-                            if p <= g {
-                                Class::Power
-                            } else {
-                                Class::Ground
-                            }
+            let margin = self.params.second_look_margin;
+            let relax = |k: &crate::descriptor::Classification| {
+                let [p, g, b] = k.class_distances;
+                match k.class {
+                    Class::Background if p.min(g) < b + margin => {
+                        if p <= g {
+                            Class::Power
+                        } else {
+                            Class::Ground
                         }
-                        other => other,
-                    };
-                    (*c, class)
-                })
-                .collect();
+                    }
+                    other => other,
+                }
+            };
+            let relaxed: Vec<(Candidate, Class)> =
+                candidates.iter().zip(&classifications).map(|(c, k)| (*c, relax(k))).collect();
             if relaxed.iter().zip(&classified).any(|(a, b)| a.1 != b.1) {
                 let (second, why) = self.search(grey, &lens, &relaxed, &hash, &mut times);
                 detection = second;
                 rejected = why.or(rejected);
+            }
+            let spread = self.params.third_look_spread;
+            if detection.is_none() && spread > 0 {
+                // A third look, only after the first two found nothing (what
+                // they find stays as it was): the candidates still background
+                // at the scale their size implies, looked at a step either side.
+                let t = Instant::now();
+                let third: Vec<(Candidate, Class)> = relaxed
+                    .iter()
+                    .map(|&(c, class)| match class {
+                        Class::Background => {
+                            (c, relax(&self.template.descriptor.classify_candidate_spread(grey, &c, spread)))
+                        }
+                        class => (c, class),
+                    })
+                    .collect();
+                times.classify += ms_since(t);
+                if third.iter().zip(&relaxed).any(|(a, b)| a.1 != b.1) {
+                    let (found, why) = self.search(grey, &lens, &third, &hash, &mut times);
+                    detection = found;
+                    rejected = why.or(rejected);
+                }
             }
         }
         // (Coarse first: the levels below were looked at already.)

@@ -220,6 +220,43 @@ impl OneWayDescriptor {
         }
         let p = self.classify(grey, candidate.centre, sp);
         let g = self.classify(grey, candidate.centre, sg);
+        self.choose_hole_class(p, g)
+    }
+
+    /// [`Self::classify_candidate`] over `spread` ladder steps either side of
+    /// each scale the candidate's size implies, each hole class at the scale
+    /// where its nearest sample is nearest. A dark blob's extent is a loose
+    /// measure of a hole's scale (small and blurred holes, a slot's shaded
+    /// ends, contacts shining inside), so the implied scale can be a step off.
+    pub fn classify_candidate_spread(&self, grey: &GrayImage, candidate: &Candidate, spread: u32) -> Classification {
+        if spread == 0 {
+            return self.classify_candidate(grey, candidate);
+        }
+        let [lo, hi] = self.params.scale_range.map(|r| r * self.reference_scale);
+        let implied = self.params.candidate_scales(candidate.size).map(|s| s.clamp(lo, hi));
+        let step = self.params.scale_step;
+        let [p, g] = [0, 1].map(|class| {
+            let mut best: Option<Classification> = None;
+            let mut last = f64::NAN;
+            for k in -(spread as i32)..=spread as i32 {
+                let scale = (implied[class] * step.powi(k)).clamp(lo, hi);
+                if scale == last {
+                    continue;
+                }
+                last = scale;
+                let c = self.classify(grey, candidate.centre, scale);
+                if best.is_none_or(|b| c.class_distances[class] < b.class_distances[class]) {
+                    best = Some(c);
+                }
+            }
+            best.unwrap_or_else(|| self.classify(grey, candidate.centre, implied[class]))
+        });
+        self.choose_hole_class(p, g)
+    }
+
+    /// The decision between a candidate classified at a power hole's scale (`p`)
+    /// and at a ground hole's scale (`g`).
+    fn choose_hole_class(&self, p: Classification, g: Classification) -> Classification {
         let (pc, pd) = self.decide(p.class_distances, [true, false]);
         let (gc, gd) = self.decide(g.class_distances, [false, true]);
         match (pc == Class::Power, gc == Class::Ground) {
