@@ -235,21 +235,24 @@ impl OneWayDescriptor {
         let [lo, hi] = self.params.scale_range.map(|r| r * self.reference_scale);
         let implied = self.params.candidate_scales(candidate.size).map(|s| s.clamp(lo, hi));
         let step = self.params.scale_step;
+        let spread = spread as i32;
         let [p, g] = [0, 1].map(|class| {
-            let mut best: Option<Classification> = None;
-            let mut last = f64::NAN;
-            for k in -(spread as i32)..=spread as i32 {
-                let scale = (implied[class] * step.powi(k)).clamp(lo, hi);
+            let scale_at = |k: i32| (implied[class] * step.powi(k)).clamp(lo, hi);
+            let mut best = self.classify(grey, candidate.centre, scale_at(-spread));
+            let mut last = best.scale;
+            for k in 1 - spread..=spread {
+                // Steps past the ladder's ends clamp to the same scale: once is enough.
+                let scale = scale_at(k);
                 if scale == last {
                     continue;
                 }
                 last = scale;
                 let c = self.classify(grey, candidate.centre, scale);
-                if best.is_none_or(|b| c.class_distances[class] < b.class_distances[class]) {
-                    best = Some(c);
+                if c.class_distances[class] < best.class_distances[class] {
+                    best = c;
                 }
             }
-            best.unwrap_or_else(|| self.classify(grey, candidate.centre, implied[class]))
+            best
         });
         self.choose_hole_class(p, g)
     }
