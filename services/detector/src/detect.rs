@@ -3,7 +3,7 @@
 //! refined holes lie where one outlet plane puts them).
 
 use crate::candidates::{CandidateParams, find_candidates};
-use crate::hashing::{HashParams, HashTable, find_outlet};
+use crate::hashing::{HashParams, HashTable, Intrinsics, find_outlet};
 use crate::refine::{HoleShape, RefineParams, Refined, outline_at, refine_hole};
 use crate::template::Template;
 use crate::verify::{VerifyParams, hole_score, identity_gain};
@@ -294,14 +294,15 @@ impl Detector {
         times.classify = ms_since(t);
 
         // What the image and the camera tell the hashing: the frame's size, and
-        // with a camera the scales an outlet 8-70 cm away can have (sqrt of the
+        // with a camera the scales an outlet 5-70 cm away can have (sqrt of the
         // Jacobian's determinant; down to the most foreshortening hashing allows):
         // an arm's camera sees the outlet to the last centimetres (issue 21).
         let mut hash = self.params.hash.clone();
         hash.image_size = Some([grey.width() as f64, grey.height() as f64]);
         if let Some(c) = camera {
             let f = (c.fx * c.fy).sqrt();
-            hash.scale_range = Some([f / 700.0 * hash.min_axis_ratio.clamp(0.0, 1.0).sqrt(), f / 80.0]);
+            hash.scale_range = Some([f / 700.0 * hash.min_axis_ratio.clamp(0.0, 1.0).sqrt(), f / 50.0]);
+            hash.intrinsics = Some(Intrinsics { fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy });
         }
         let lens = Lens { camera };
         let (mut detection, mut rejected) = self.search(grey, &lens, &classified, &hash, &mut times);

@@ -8,7 +8,7 @@
 
 use nalgebra::{Matrix2, Matrix3, Point2, Point3, Rotation3, Vector2, Vector3};
 use outlet_detector::Class;
-use outlet_detector::hashing::{HashParams, HashTable, OutletMatch, find_outlet};
+use outlet_detector::hashing::{HashParams, HashTable, Intrinsics, OutletMatch, find_outlet};
 use outlet_protocol::CameraModel;
 use outlet_protocol::geometry::OutletGeometry;
 use outlet_sim::rng::SimRng;
@@ -338,6 +338,46 @@ fn hashing_recovers_perspective_views_up_to_40_degrees_off_axis() {
         }
         any.check(&format!("{name}, perspective 0-40 degrees, clutter"), 95);
         steep.check(&format!("{name}, perspective 35-40 degrees, clutter"), 95);
+    }
+}
+
+/// The arm's last centimetres: the outlet 9-12 cm away, 30-40 degrees off-axis,
+/// where one receptacle is a third larger in the image than the other.
+fn close_oblique_perspective(rng: &mut SimRng) -> Perspective {
+    let roll = Rotation3::from_axis_angle(&Vector3::z_axis(), rng.range(0.0, TAU));
+    let azimuth = rng.range(0.0, TAU);
+    let axis = nalgebra::Unit::new_normalize(Vector3::new(azimuth.cos(), azimuth.sin(), 0.0));
+    let tilt = Rotation3::from_axis_angle(&axis, rng.range(30.0f64, 40.0).to_radians());
+    let distance = rng.range(90.0, 120.0);
+    Perspective { rotation: tilt * roll, translation: Vector3::new(0.0, 0.0, distance) }
+}
+
+#[test]
+fn close_oblique_views_are_found_when_the_camera_is_known() {
+    // The test's pinhole camera (`Perspective`).
+    let camera = Intrinsics { fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5 };
+    let with_camera = HashParams { intrinsics: Some(camera), ..HashParams::default() };
+    for name in ["2x1", "2x2"] {
+        let t = template(name);
+        let table = table(&t);
+        let mut rng = SimRng::new(21);
+        let (mut known, mut unknown) = (Tally::default(), Tally::default());
+        for _ in 0..100 {
+            let view = close_oblique_perspective(&mut rng);
+            // One hole missing: the hypotheses grow through fits of 4-5 matches.
+            let missing = rng.below(t.points.len());
+            let keep: Vec<bool> = (0..t.points.len()).map(|j| j != missing).collect();
+            let mut c = true_holes(&mut rng, &t, &view, &keep);
+            add_clutter_around(&mut rng, &mut c, t.points.len(), view.scale(t.points[0]));
+            known.add(judge(&c.find_with(&table, &with_camera), &c.truth));
+            unknown.add(judge(&c.find(&table), &c.truth));
+        }
+        // Without the camera (affine fits below six matches) far fewer are
+        // found; the 2x1 at this seed also gives one wrong assignment, which the
+        // detector's refinement and plane check stand behind.
+        println!("{name} without the camera: {unknown:?}");
+        known.check(&format!("{name}, 9-12 cm, 30-40 degrees, camera known"), 60);
+        assert!(known.exact > unknown.exact, "{name}: the camera did not help: {known:?} against {unknown:?}");
     }
 }
 

@@ -209,9 +209,10 @@ fn view(
             }
         }
     }
-    // Wrong outlets are kept to look at (`outlet detect --camera` reruns them).
-    if found && !correct {
-        let dir = args.out.join("wrong");
+    // Wrong outlets and misses are kept to look at (`outlet detect --camera`
+    // reruns them).
+    if !correct {
+        let dir = args.out.join(if found { "wrong" } else { "missed" });
         let stem = format!("{name}_{}_{approach}_{:.0}cm", scene.scenario, distance * 100.0);
         std::fs::create_dir_all(&dir)?;
         frame.frame.image.save_with_format(dir.join(format!("{stem}.png")), image::ImageFormat::Png)?;

@@ -39,6 +39,7 @@ mod search;
 mod significance;
 mod table;
 
+pub use fit::Intrinsics;
 pub use params::HashParams;
 pub use table::HashTable;
 
@@ -245,7 +246,7 @@ pub fn find_outlet(
 
 #[cfg(test)]
 mod tests {
-    use super::fit::{apply, fit_affine, fit_homography};
+    use super::fit::{apply, fit_affine, fit_homography, fit_planar_pose};
     use super::significance::ln_binomial;
     use super::*;
 
@@ -285,6 +286,52 @@ mod tests {
         // Degenerate: too few or coincident points.
         assert!(fit_homography(&src[..3], &dst[..3], Point2::origin()).is_none());
         assert!(fit_affine(&[Point2::origin(); 3], &dst[..3]).is_none());
+    }
+
+    /// A 2x1's holes seen by a VGA camera 10 cm away, 38 degrees off-axis
+    /// (the arm's last centimetres), in pixels.
+    fn close_oblique_view(src: &[Point2<f64>], k: &Intrinsics) -> Vec<Point2<f64>> {
+        use nalgebra::{Rotation3, Vector3};
+        let rotation =
+            Rotation3::from_axis_angle(&Vector3::x_axis(), 0.66) * Rotation3::from_axis_angle(&Vector3::z_axis(), 0.4);
+        let t = Vector3::new(-8.0, -30.0, 100.0);
+        src.iter()
+            .map(|s| {
+                let p = rotation * Vector3::new(s.x, s.y, 0.0) + t;
+                Point2::new(k.fx * p.x / p.z + k.cx, k.fy * p.y / p.z + k.cy)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_rigid_plate_fit_holds_the_perspective_of_a_close_view_where_an_affine_fit_does_not() {
+        let src: Vec<Point2<f64>> = [(0.0, 0.0), (12.7, 0.0), (6.35, 11.9), (0.0, 38.1), (12.7, 38.1), (6.35, 50.0)]
+            .iter()
+            .map(|&(x, y)| Point2::new(x, y))
+            .collect();
+        let k = Intrinsics { fx: 525.0, fy: 525.0, cx: 320.0, cy: 240.0 };
+        let dst = close_oblique_view(&src, &k);
+        // Leave the last hole out and predict it from the other five.
+        let centre = Point2::new(6.35, 25.0);
+        let plate = fit_planar_pose(&src[..5], &dst[..5], &k, centre).expect("pose");
+        let affine = fit_affine(&src[..5], &dst[..5]).expect("affine");
+        let plate_error = (apply(&plate, src[5]) - dst[5]).norm();
+        let affine_error = (apply(&affine, src[5]) - dst[5]).norm();
+        assert!(plate_error < 1e-6, "plate fit off by {plate_error} px");
+        assert!(affine_error > 10.0, "the view is not perspective enough to test: affine off by {affine_error} px");
+        // Four points fix it too; noise moves the prediction by about its size.
+        let noisy: Vec<Point2<f64>> = dst
+            .iter()
+            .enumerate()
+            .map(|(i, p)| p + nalgebra::Vector2::new(0.3 * (i as f64).sin(), -0.3 * (i as f64).cos()))
+            .collect();
+        let four = fit_planar_pose(&src[..4], &noisy[..4], &k, centre).expect("pose from four");
+        assert!((apply(&four, src[5]) - dst[5]).norm() < 3.0);
+        // w = 1 at the centre, as the homography's.
+        assert!((plate[(2, 0)] * centre.x + plate[(2, 1)] * centre.y + plate[(2, 2)] - 1.0).abs() < 1e-9);
+        // Too few points, or a camera without focal length: none.
+        assert!(fit_planar_pose(&src[..3], &dst[..3], &k, centre).is_none());
+        assert!(fit_planar_pose(&src, &dst, &Intrinsics { fx: 0.0, ..k }, centre).is_none());
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! The online half: candidates, a grid over them, the voting of online bases, and
 //! each hypothesis scored (equation (2)), refined and verified (leave-one-out).
 
-use super::fit::{apply, fit_affine, fit_homography};
+use super::fit::{apply, fit_affine, fit_homography, fit_planar_pose};
 use super::{HashParams, HashTable, MAX_CANDIDATES, MAX_TEMPLATE_HOLES, axis_ratio, class_index, cross};
 use crate::Class;
 use nalgebra::{Matrix2, Matrix3, Point2};
@@ -307,13 +307,30 @@ impl<'a> Search<'a> {
     }
 
     /// Least-squares transform of an assignment's matches: a homography from
-    /// `min_homography_matches` matches, otherwise affine.
+    /// `min_homography_matches` matches, otherwise affine, or a rigid plate's
+    /// pose where the camera is known and the matches show the perspective: the
+    /// affine fit leaves more than `position_precision_px` RMS and the pose at
+    /// most half of it. Where they do not, the pose's tilt is barely determined
+    /// (a small patch, far away: two tilts fit alike and extrapolate apart) and
+    /// the affine map, its limit, is the safer guess.
     pub(super) fn fit(&self, assignment: &Assignment) -> Option<Matrix3<f64>> {
         let (n, src, dst) = self.pairs(assignment);
+        let (src, dst) = (&src[..n], &dst[..n]);
         if n >= self.params.min_homography_matches.max(4) {
-            fit_homography(&src[..n], &dst[..n], self.table.centroid)
-        } else {
-            fit_affine(&src[..n], &dst[..n])
+            return fit_homography(src, dst, self.table.centroid);
+        }
+        let affine = fit_affine(src, dst)?;
+        let Some(k) = &self.params.intrinsics else { return Some(affine) };
+        let sse = |t: &Matrix3<f64>| src.iter().zip(dst).map(|(s, d)| (apply(t, *s) - d).norm_squared()).sum::<f64>();
+        let affine_sse = sse(&affine);
+        let noise = self.params.position_precision_px;
+        let shows_perspective = affine_sse > noise * noise * n as f64;
+        if n < 4 || !shows_perspective {
+            return Some(affine);
+        }
+        match fit_planar_pose(src, dst, k, self.table.centroid) {
+            Some(pose) if sse(&pose) <= 0.25 * affine_sse => Some(pose),
+            _ => Some(affine),
         }
     }
 
