@@ -892,7 +892,7 @@ impl Lens<'_> {
 
 /// The image at half resolution: each pixel the mean of a 2x2 block. None when
 /// the image is too small to halve.
-fn half_resolution(grey: &GrayImage) -> Option<GrayImage> {
+pub(crate) fn half_resolution(grey: &GrayImage) -> Option<GrayImage> {
     let (w, h) = (grey.width() / 2, grey.height() / 2);
     if w < 16 || h < 16 {
         return None;

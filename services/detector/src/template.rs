@@ -169,25 +169,39 @@ pub fn train_template(
     params: &DescriptorParams,
     calibrate_sizes: bool,
 ) -> Result<Template, TemplateError> {
-    train_template_tilted(name, geometry, views, backgrounds, params, calibrate_sizes, &[])
+    let options = TrainingOptions { calibrate_sizes, ..TrainingOptions::default() };
+    train_template_with(name, geometry, views, backgrounds, params, &options)
 }
 
-/// [`train_template`], each labelled hole also trained foreshortened by each of
-/// `tilts` (the ratio of a view's stretches, 1/cos of its off-axis angle: 2.0 is
-/// 60 degrees) across three axes of the face 60 degrees apart, as ASIFT samples
-/// tilts: the poses' own stretches reach about 45 degrees from the training
-/// view. On the Willow views a tilt of 2.0 found more steep views, and one
-/// wrong (BENCHMARKS.md, "Tilted training"), so `outlet train` adds none unless
-/// asked.
-pub fn train_template_tilted(
+/// How a template is trained beyond the paper's one-way descriptor.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TrainingOptions<'a> {
+    /// The candidates' sizes on the labelled holes set how candidates are
+    /// scaled for classification (for photographs).
+    pub calibrate_sizes: bool,
+    /// Each labelled hole also trained foreshortened by each of these (the
+    /// ratio of a view's stretches, 1/cos of its off-axis angle: 2.0 is 60
+    /// degrees) across three axes of the face 60 degrees apart, as ASIFT samples
+    /// tilts: the poses' own stretches reach about 45 degrees from the training
+    /// view. On the Willow views a tilt of 2.0 found more steep views, and one
+    /// wrong (BENCHMARKS.md, "Tilted training"), so `outlet train` adds none
+    /// unless asked.
+    pub tilts: &'a [f64],
+    /// Half the poses sampled at half resolution
+    /// ([`crate::descriptor::train_with`]): the built-in templates have them.
+    pub far_samples: bool,
+}
+
+/// [`train_template`] with every option.
+pub fn train_template_with(
     name: &str,
     geometry: OutletGeometry,
     views: &[TrainingImage],
     backgrounds: &[(&GrayImage, Vec<Candidate>)],
     params: &DescriptorParams,
-    calibrate_sizes: bool,
-    tilts: &[f64],
+    options: &TrainingOptions,
 ) -> Result<Template, TemplateError> {
+    let TrainingOptions { calibrate_sizes, tilts, far_samples } = *options;
     let invalid = |reason: String| TemplateError::Invalid { name: name.to_string(), reason };
     geometry.validate(name).map_err(|e| invalid(e.to_string()))?;
     if let Some(t) = tilts.iter().find(|t| !(t.is_finite() && (1.0..=10.0).contains(*t))) {
@@ -251,7 +265,7 @@ pub fn train_template_tilted(
             features.extend(background.into_iter().map(|f| TrainingFeature { centre: shift(f.centre, k), ..f }));
         }
     }
-    let mut descriptor = crate::descriptor::train(&grey, &features, params)
+    let mut descriptor = crate::descriptor::train_with(&grey, &features, params, far_samples)
         .map_err(|source| TemplateError::Training { name: name.to_string(), source })?;
     if calibrate_sizes {
         // How big the candidate stage sees this outlet's holes, relative to their

@@ -9,7 +9,7 @@ use outlet_detector::candidates::find_candidates;
 use outlet_detector::descriptor::DescriptorParams;
 use outlet_detector::detect::{Detection, Detector, DetectorParams};
 use outlet_detector::grey_of;
-use outlet_detector::template::{TrainingImage, train_template_tilted};
+use outlet_detector::template::{TrainingImage, TrainingOptions, train_template_with};
 use outlet_detector::track::{Searched, TrackParams, Tracker};
 use outlet_normal::{PlaneParams, fit_wall_plane};
 use outlet_pose::{OutletPose, PoseError, solve_mono, solve_normal, solve_plane};
@@ -417,9 +417,14 @@ pub struct TrainArgs {
     pub output: PathBuf,
     /// Also train each hole foreshortened by this factor (1/cos of an off-axis
     /// angle: 2.0 is 60 degrees), about three axes; repeat for several. None by
-    /// default (see `train_template_tilted`).
+    /// default (see `TrainingOptions::tilts`).
     #[arg(long = "tilt")]
     pub tilts: Vec<f64>,
+    /// Also train every other pose from the image at half resolution, as far
+    /// holes look: for a sharp, close training image (the built-in templates
+    /// have it); on the soft Willow photograph V000 it found fewer views.
+    #[arg(long)]
+    pub far_samples: bool,
 }
 
 pub fn train(args: TrainArgs) -> Result<()> {
@@ -465,14 +470,14 @@ pub fn train(args: TrainArgs) -> Result<()> {
     let refs: Vec<_> = backgrounds.iter().map(|(g, c)| (g, c.clone())).collect();
     let name = args.output.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "template".into());
     progress.set_message("training the descriptor (affine views of every hole and background feature)");
-    let template = train_template_tilted(
+    let options = TrainingOptions { calibrate_sizes: true, tilts: &args.tilts, far_samples: args.far_samples };
+    let template = train_template_with(
         &name,
         geometry,
         &[TrainingImage { grey: &grey, holes: pixels, candidates }],
         &refs,
         &DescriptorParams::default(),
-        true,
-        &args.tilts,
+        &options,
     )?;
     template.write(&args.output)?;
     progress.finish_and_clear();

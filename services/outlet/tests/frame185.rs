@@ -4,11 +4,13 @@
 //! pose service used to leave the plane for a mono pose 5-31 mm wrong with
 //! 1 mm error bars.
 //!
-//! Now the detector does not report that outlet at all: two of its holes cannot
-//! be fitted, and a hole is taken from the homography of the others only when
-//! five were fitted (four fix a homography and check nothing). Allowed to
-//! predict from four, the outlet is found, and its plane pose is within a
-//! millimetre and 5 sigma of the truth on every hole.
+//! Then the detector refused that outlet: two of its holes could not be fitted,
+//! and a hole is taken from the homography of the others only when five were
+//! fitted (four fix a homography and check nothing). Since the built-in
+//! templates have far samples (session 9) all six are classed and fitted, and
+//! the outlet is reported. Either way, and allowed to predict from four, its
+//! plane pose must be within a millimetre and 5 sigma of the truth on every
+//! hole.
 
 use nalgebra::Matrix3;
 use outlet_detector::detect::{Detector, DetectorParams};
@@ -22,23 +24,42 @@ fn the_demos_frame_185_is_refused_or_else_a_plane_pose_within_a_millimetre() -> 
     let frame = outlet_sim::render_frame(&scene, "sim-184");
     let template = outlet::templates::builtin("2x1")?;
 
+    // Shipped: refused (too few holes fitted to predict the others), or found
+    // with every hole fitted; either way no confident mistake.
     let shipped = Detector::new(template.clone(), DetectorParams::default());
     let report = shipped.detect(&frame.frame.image, Some(&camera));
-    assert!(report.detection.is_none(), "frame 185 reported with two holes unfitted");
-    let why = report.rejected.unwrap_or_default();
-    assert!(why.contains("too few to predict"), "{why}");
+    match &report.detection {
+        Some(d) => {
+            assert!(d.holes.iter().all(|h| h.refined), "frame 185 reported with a hole predicted, not fitted");
+            plane_pose_within_a_millimetre_and_5_sigma(&frame, &camera, d, &shipped)?;
+        }
+        None => {
+            let why = report.rejected.clone().unwrap_or_default();
+            assert!(why.contains("too few to predict"), "{why}");
+        }
+    }
 
     let permissive = Detector::new(template, DetectorParams { min_fitted_for_prediction: 4, ..Default::default() });
     let detection = permissive.detect(&frame.frame.image, Some(&camera)).detection.ok_or("found from 4 holes")?;
-    let geometry = &permissive.template().geometry;
-    let holes = outlet::DetectedHoles::new(&detection, geometry);
-    let obs = holes.observations(&camera, 0.25);
+    plane_pose_within_a_millimetre_and_5_sigma(&frame, &camera, &detection, &permissive)
+}
+
+fn plane_pose_within_a_millimetre_and_5_sigma(
+    frame: &outlet_sim::RenderedFrame,
+    camera: &outlet_protocol::CameraModel,
+    detection: &outlet_detector::detect::Detection,
+    detector: &Detector,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let geometry = &detector.template().geometry;
+    let holes = outlet::DetectedHoles::new(detection, geometry);
+    let obs = holes.observations(camera, 0.25);
     let plane = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default())?;
     let pose = solve_plane(&obs, &outlet::plane_measurement(&plane, geometry, &outlet::ModelError::default()))?;
     for (k, truth) in frame.truth.holes.iter().enumerate() {
         let e = pose.holes_cam_m[k] - nalgebra::Point3::from(truth.position_m.ok_or("truth position")?);
         let c: Matrix3<f64> = pose.covariances[k];
         let sigmas = e.dot(&c.cholesky().ok_or("covariance")?.solve(&e)).sqrt();
+        println!("hole {k}: {:.3} mm, {sigmas:.2} sigma", e.norm() * 1e3);
         assert!(e.norm() < 1e-3, "hole {k}: {:.3} mm off", e.norm() * 1e3);
         assert!(sigmas < 5.0, "hole {k}: {sigmas:.1} sigma off");
     }

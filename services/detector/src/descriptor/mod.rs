@@ -36,7 +36,7 @@ mod classify;
 mod poses;
 mod training;
 
-pub use training::{background_features, train};
+pub use training::{background_features, train, train_with};
 
 use crate::Class;
 use nalgebra::{Matrix2, Point2};

@@ -15,6 +15,21 @@ pub fn train(
     features: &[TrainingFeature],
     params: &DescriptorParams,
 ) -> Result<OneWayDescriptor, DescriptorError> {
+    train_with(grey, features, params, false)
+}
+
+/// [`train`], and with `far_samples` every other pose sampled from the image
+/// at half resolution, the feature at half its scale: a far hole (a slot 7 px
+/// long at 60 cm on VGA) is the blur of a few pixels, which a sharp training
+/// image never shows. Worth it for sharp, close training images (the built-in
+/// renders); on the Willow photograph V000, itself soft, it found fewer of its
+/// views (BENCHMARKS.md, "Session 9").
+pub fn train_with(
+    grey: &GrayImage,
+    features: &[TrainingFeature],
+    params: &DescriptorParams,
+    far_samples: bool,
+) -> Result<OneWayDescriptor, DescriptorError> {
     let _span = tracing::debug_span!("descriptor_train", features = features.len()).entered();
     params.check()?;
     let (width, height) = grey.dimensions();
@@ -43,10 +58,19 @@ pub fn train(
     let mut raw: Vec<f32> = Vec::with_capacity(features.len() * poses.len() * dim);
     let mut counts = [0usize; 3];
     let mut sample = vec![0.0f32; dim];
+    let half = if far_samples { crate::detect::half_resolution(grey) } else { None };
     for class in CLASSES {
         for f in features.iter().filter(|f| f.class == class) {
-            for pose in &poses {
-                pose_sample(grey, f, pose, params, &mut rng, &mut sample);
+            let halved = TrainingFeature {
+                centre: Point2::new((f.centre.x - 0.5) / 2.0, (f.centre.y - 0.5) / 2.0),
+                scale: f.scale / 2.0,
+                ..*f
+            };
+            for (i, pose) in poses.iter().enumerate() {
+                match &half {
+                    Some(half) if i % 2 == 1 => pose_sample(half, &halved, pose, params, &mut rng, &mut sample),
+                    _ => pose_sample(grey, f, pose, params, &mut rng, &mut sample),
+                }
                 raw.extend_from_slice(&sample);
                 counts[class_index(class)] += 1;
             }

@@ -7,7 +7,7 @@ use outlet_detector::candidates::{CandidateParams, find_candidates};
 use outlet_detector::descriptor::DescriptorParams;
 use outlet_detector::detect::{Detection, Detector, DetectorParams};
 use outlet_detector::grey_of;
-use outlet_detector::template::{Template, TrainingImage, train_template};
+use outlet_detector::template::{Template, TrainingImage, TrainingOptions, train_template_with};
 use outlet_protocol::{CameraModel, OutletGeometry};
 use outlet_sim::scenario::pose_looking;
 use outlet_sim::scene::Scene;
@@ -47,7 +47,17 @@ pub fn plain_scene_seen_by(
 /// rendered views and three backgrounds, once per test process.
 pub fn template() -> &'static Template {
     static TEMPLATE: OnceLock<Template> = OnceLock::new();
-    TEMPLATE.get_or_init(|| {
+    TEMPLATE.get_or_init(|| train_2x1(true))
+}
+
+/// [`template`] without the far samples (the paper's training alone).
+pub fn template_without_far_samples() -> &'static Template {
+    static TEMPLATE: OnceLock<Template> = OnceLock::new();
+    TEMPLATE.get_or_init(|| train_2x1(false))
+}
+
+fn train_2x1(far_samples: bool) -> Template {
+    {
         let views = [(0.30, 0.0, 0.0), (0.35, 30.0, 0.0), (0.35, 30.0, 90.0), (0.45, 20.0, 225.0)];
         let params = CandidateParams::high_recall();
         let mut greys = Vec::new();
@@ -76,8 +86,10 @@ pub fn template() -> &'static Template {
             .collect();
         let refs: Vec<_> = backgrounds.iter().map(|(g, c)| (g, c.clone())).collect();
         let geometry = OutletGeometry::builtin("2x1").expect("geometry");
-        train_template("2x1", geometry, &training, &refs, &DescriptorParams::default(), false).expect("training")
-    })
+        let options = TrainingOptions { far_samples, ..TrainingOptions::default() };
+        train_template_with("2x1", geometry, &training, &refs, &DescriptorParams::default(), &options)
+            .expect("training")
+    }
 }
 
 pub fn detector() -> Detector {
