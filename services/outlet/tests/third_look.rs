@@ -11,7 +11,8 @@ use outlet_sim::{render, sample_scene, truth::ground_truth};
 
 fn detector_for(name: &str, third_look_spread: u32) -> Detector {
     let template = outlet::templates::builtin(name).expect("built-in template");
-    Detector::new(template, DetectorParams { third_look_spread, ..DetectorParams::default() })
+    // The last look (classes swapped) off: it finds some of the same outlets.
+    Detector::new(template, DetectorParams { third_look_spread, swap_look_margin: 0.0, ..DetectorParams::default() })
 }
 
 /// Full resolution alone: the half-resolution look comes after the third, so
@@ -19,7 +20,8 @@ fn detector_for(name: &str, third_look_spread: u32) -> Detector {
 /// resolution (a little differently).
 fn full_resolution_detector(third_look_spread: u32) -> Detector {
     let template = outlet::templates::builtin("2x1").expect("built-in template");
-    Detector::new(template, DetectorParams { third_look_spread, pyramid_min_px: 0, ..DetectorParams::default() })
+    let params = DetectorParams { third_look_spread, pyramid_min_px: 0, swap_look_margin: 0.0, ..Default::default() };
+    Detector::new(template, params)
 }
 
 fn detector(third_look_spread: u32) -> Detector {
