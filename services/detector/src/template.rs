@@ -188,7 +188,8 @@ pub struct TrainingOptions<'a> {
     /// unless asked.
     pub tilts: &'a [f64],
     /// Half the poses sampled at half resolution
-    /// ([`crate::descriptor::train_with`]): the built-in templates have them.
+    /// ([`crate::descriptor::train_with`]). Off for the built-in templates:
+    /// BENCHMARKS.md, "Session 9: far samples withdrawn".
     pub far_samples: bool,
 }
 

@@ -1,7 +1,7 @@
 //! Far holes: a slot 5-8 px long (a VGA camera 60-75 cm away) is the blur of a
-//! few pixels. The templates trained with far samples (half their poses taken
-//! at half resolution, as the built-in ones are) must find more of them than
-//! the paper's training alone, and never a wrong outlet.
+//! few pixels. A template trained with far samples (half its poses taken at
+//! half resolution) must find more of them than the paper's training alone,
+//! and never a wrong outlet.
 
 mod common;
 
@@ -12,8 +12,8 @@ use outlet_sim::render_frame;
 #[test]
 fn far_samples_find_more_far_outlets_and_none_wrong() {
     let camera = common::camera();
-    let with = Detector::new(common::template().clone(), DetectorParams::default());
-    let without = Detector::new(common::template_without_far_samples().clone(), DetectorParams::default());
+    let with = Detector::new(common::template_with_far_samples().clone(), DetectorParams::default());
+    let without = Detector::new(common::template().clone(), DetectorParams::default());
     let (mut found_with, mut found_without) = (0, 0);
     let views = 24;
     for k in 0..views {

@@ -421,8 +421,8 @@ pub struct TrainArgs {
     #[arg(long = "tilt")]
     pub tilts: Vec<f64>,
     /// Also train every other pose from the image at half resolution, as far
-    /// holes look: for a sharp, close training image (the built-in templates
-    /// have it); on the soft Willow photograph V000 it found fewer views.
+    /// holes look (off by default: BENCHMARKS.md, "Session 9: far samples
+    /// withdrawn").
     #[arg(long)]
     pub far_samples: bool,
 }

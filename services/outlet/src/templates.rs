@@ -7,7 +7,7 @@ use nalgebra::{Point2, Vector3};
 use outlet_detector::candidates::{CandidateParams, find_candidates};
 use outlet_detector::descriptor::DescriptorParams;
 use outlet_detector::grey_of;
-use outlet_detector::template::{Template, TrainingImage, TrainingOptions, train_template_with};
+use outlet_detector::template::{Template, TrainingImage, train_template};
 use outlet_protocol::{CameraModel, OutletGeometry};
 use outlet_sim::scenario::pose_looking;
 use outlet_sim::{render_frame, sample_scene};
@@ -114,9 +114,9 @@ pub fn builtin(name: &str) -> Result<Template> {
         })
         .collect::<Result<_>>()?;
     let refs: Vec<_> = backgrounds.iter().map(|(g, c)| (g, c.clone())).collect();
-    // Far samples: the renders are sharp, and far holes are not (BENCHMARKS.md,
-    // "Session 9": Table I 5 misses -> 3, VGA at 60 cm 29 -> 33 of 35).
-    let options = TrainingOptions { far_samples: true, ..TrainingOptions::default() };
-    train_template_with(name, geometry, &views, &refs, &DescriptorParams::default(), &options)
+    // No far samples: they found more far outlets but also a wrong one on a
+    // real photograph's view and a hole beyond 5 sigma (BENCHMARKS.md, "Session
+    // 9: far samples withdrawn").
+    train_template(name, geometry, &views, &refs, &DescriptorParams::default(), false)
         .with_context(|| format!("training the built-in {name} template"))
 }

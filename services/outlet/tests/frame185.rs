@@ -6,11 +6,9 @@
 //!
 //! Then the detector refused that outlet: two of its holes could not be fitted,
 //! and a hole is taken from the homography of the others only when five were
-//! fitted (four fix a homography and check nothing). Since the built-in
-//! templates have far samples (session 9) all six are classed and fitted, and
-//! the outlet is reported. Either way, and allowed to predict from four, its
-//! plane pose must be within a millimetre and 5 sigma of the truth on every
-//! hole.
+//! fitted (four fix a homography and check nothing). Should a later detector
+//! fit all six and report it, or be allowed to predict from four, its plane
+//! pose must be within a millimetre and 5 sigma of the truth on every hole.
 
 use nalgebra::Matrix3;
 use outlet_detector::detect::{Detector, DetectorParams};

@@ -21,9 +21,9 @@ pub fn train(
 /// [`train`], and with `far_samples` every other pose sampled from the image
 /// at half resolution, the feature at half its scale: a far hole (a slot 7 px
 /// long at 60 cm on VGA) is the blur of a few pixels, which a sharp training
-/// image never shows. Worth it for sharp, close training images (the built-in
-/// renders); on the Willow photograph V000, itself soft, it found fewer of its
-/// views (BENCHMARKS.md, "Session 9").
+/// image never shows. On rendered approaches it found more far outlets, but
+/// also a wrong outlet on a real photograph's view (BENCHMARKS.md, "Session 9:
+/// far samples withdrawn"), so nothing trains with it unless asked.
 pub fn train_with(
     grey: &GrayImage,
     features: &[TrainingFeature],

@@ -47,49 +47,46 @@ pub fn plain_scene_seen_by(
 /// rendered views and three backgrounds, once per test process.
 pub fn template() -> &'static Template {
     static TEMPLATE: OnceLock<Template> = OnceLock::new();
-    TEMPLATE.get_or_init(|| train_2x1(true))
-}
-
-/// [`template`] without the far samples (the paper's training alone).
-pub fn template_without_far_samples() -> &'static Template {
-    static TEMPLATE: OnceLock<Template> = OnceLock::new();
     TEMPLATE.get_or_init(|| train_2x1(false))
 }
 
+/// [`template`] with far samples (`TrainingOptions::far_samples`).
+pub fn template_with_far_samples() -> &'static Template {
+    static TEMPLATE: OnceLock<Template> = OnceLock::new();
+    TEMPLATE.get_or_init(|| train_2x1(true))
+}
+
 fn train_2x1(far_samples: bool) -> Template {
-    {
-        let views = [(0.30, 0.0, 0.0), (0.35, 30.0, 0.0), (0.35, 30.0, 90.0), (0.45, 20.0, 225.0)];
-        let params = CandidateParams::high_recall();
-        let mut greys = Vec::new();
-        let mut labels = Vec::new();
-        for (k, &(d, a, z)) in views.iter().enumerate() {
-            let mut scene = plain_scene(100 + k as u64, d, a, z, 0.0);
-            scene.hole_glint = 0.0;
-            scene.sensor.exposure = 1.0;
-            scene.sensor.blur_sigma = 0.0;
-            let frame = render_frame(&scene, "training");
-            greys.push(grey_of(&frame.frame.image));
-            labels.push(frame.truth.holes.iter().map(|h| Point2::new(h.pixel[0], h.pixel[1])).collect::<Vec<_>>());
-        }
-        let training: Vec<TrainingImage> = greys
-            .iter()
-            .zip(labels)
-            .map(|(g, holes)| TrainingImage { grey: g, holes, candidates: find_candidates(g, &params) })
-            .collect();
-        let backgrounds: Vec<_> = (0..3)
-            .map(|i| {
-                let scene = sample_scene("negative", 4242, i, &camera()).expect("scene");
-                let g = grey_of(&render_frame(&scene, "background").frame.image);
-                let c = find_candidates(&g, &params);
-                (g, c)
-            })
-            .collect();
-        let refs: Vec<_> = backgrounds.iter().map(|(g, c)| (g, c.clone())).collect();
-        let geometry = OutletGeometry::builtin("2x1").expect("geometry");
-        let options = TrainingOptions { far_samples, ..TrainingOptions::default() };
-        train_template_with("2x1", geometry, &training, &refs, &DescriptorParams::default(), &options)
-            .expect("training")
+    let views = [(0.30, 0.0, 0.0), (0.35, 30.0, 0.0), (0.35, 30.0, 90.0), (0.45, 20.0, 225.0)];
+    let params = CandidateParams::high_recall();
+    let mut greys = Vec::new();
+    let mut labels = Vec::new();
+    for (k, &(d, a, z)) in views.iter().enumerate() {
+        let mut scene = plain_scene(100 + k as u64, d, a, z, 0.0);
+        scene.hole_glint = 0.0;
+        scene.sensor.exposure = 1.0;
+        scene.sensor.blur_sigma = 0.0;
+        let frame = render_frame(&scene, "training");
+        greys.push(grey_of(&frame.frame.image));
+        labels.push(frame.truth.holes.iter().map(|h| Point2::new(h.pixel[0], h.pixel[1])).collect::<Vec<_>>());
     }
+    let training: Vec<TrainingImage> = greys
+        .iter()
+        .zip(labels)
+        .map(|(g, holes)| TrainingImage { grey: g, holes, candidates: find_candidates(g, &params) })
+        .collect();
+    let backgrounds: Vec<_> = (0..3)
+        .map(|i| {
+            let scene = sample_scene("negative", 4242, i, &camera()).expect("scene");
+            let g = grey_of(&render_frame(&scene, "background").frame.image);
+            let c = find_candidates(&g, &params);
+            (g, c)
+        })
+        .collect();
+    let refs: Vec<_> = backgrounds.iter().map(|(g, c)| (g, c.clone())).collect();
+    let geometry = OutletGeometry::builtin("2x1").expect("geometry");
+    let options = TrainingOptions { far_samples, ..TrainingOptions::default() };
+    train_template_with("2x1", geometry, &training, &refs, &DescriptorParams::default(), &options).expect("training")
 }
 
 pub fn detector() -> Detector {
