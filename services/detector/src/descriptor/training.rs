@@ -61,14 +61,14 @@ pub fn train_with(
     let half = if far_samples { crate::detect::half_resolution(grey) } else { None };
     for class in CLASSES {
         for f in features.iter().filter(|f| f.class == class) {
-            let halved = TrainingFeature {
-                centre: Point2::new((f.centre.x - 0.5) / 2.0, (f.centre.y - 0.5) / 2.0),
-                scale: f.scale / 2.0,
-                ..*f
-            };
+            // The same feature in the half image's pixels (OpenCV centres).
+            let halved = half.as_ref().map(|h| {
+                let centre = Point2::new((f.centre.x - 0.5) / 2.0, (f.centre.y - 0.5) / 2.0);
+                (h, TrainingFeature { centre, scale: f.scale / 2.0, ..*f })
+            });
             for (i, pose) in poses.iter().enumerate() {
-                match &half {
-                    Some(half) if i % 2 == 1 => pose_sample(half, &halved, pose, params, &mut rng, &mut sample),
+                match &halved {
+                    Some((h, g)) if i % 2 == 1 => pose_sample(h, g, pose, params, &mut rng, &mut sample),
                     _ => pose_sample(grey, f, pose, params, &mut rng, &mut sample),
                 }
                 raw.extend_from_slice(&sample);
