@@ -11,11 +11,12 @@
 #   - AprilTag: a small C program (scripts/bench/apriltag_bench.c), 1 thread,
 #     tag36h11, quad_decimate 1 and 2; per image the median of R calls of
 #     apriltag_detector_detect alone, and the time it took to read the PGM;
-#   - outlet: `outlet detect --template 2x2 --json` over the pasted PNGs, R runs;
+#   - outlet: `outlet detect --template 2x2 --json` over the pasted PNGs, and over
+#     the same PGMs AprilTag reads, R runs each;
 #     per image the median of its own timing_ms.detect (Detector::detect on the
 #     decoded image in memory, wall clock), and the process's CPU time per image
-#     over a whole run ((CPU of N images - CPU of 1 image) / (N - 1): PNG
-#     decoding, detection and the JSON line; startup and template cancel out).
+#     over a whole run ((CPU of N images - CPU of 1 image) / (N - 1): reading
+#     the file, detection and the JSON line; startup and template cancel out).
 # CPU times are what to trust on a busy machine; wall times on an idle one.
 # Prints a markdown table: medians over the images, ratios outlet / AprilTag,
 # and how many images each found (AprilTag: the pasted tag; outlet: the outlet,
@@ -134,11 +135,15 @@ for RES in 640x480 1280x960; do
     echo "[$RES] AprilTag, decimate 1 and 2, $REPS repetitions each, on CPU 0 ..." >&2
     taskset -c 0 "$APRIL" detect 1 "$REPS" "$D"/pasted/*.pgm >"$D/april_d1.txt"
     taskset -c 0 "$APRIL" detect 2 "$REPS" "$D"/pasted/*.pgm >"$D/april_d2.txt"
-    echo "[$RES] outlet detect, $REPS runs, on CPU 0 ..." >&2
-    TRUTH_DIR="$D/render" python3 "$PY" time-outlet "$OUTLET" "$REPS" "$D"/pasted/*.png >"$D/outlet.json"
-    out="$(python3 "$PY" summary "$RES" "$D/outlet.json" "$D/april_d1.txt" "$D/april_d2.txt")"
-    ROWS+=("$(grep -v '^JSON ' <<<"$out")")
-    JSONS+=("$(grep '^JSON ' <<<"$out" | sed 's/^JSON //')")
+    # outlet reads the colour PNG (and makes its own grey, the brightest channel), and
+    # the very PGM AprilTag reads (its grey is luminance: a mono camera's).
+    for INPUT in png pgm; do
+        echo "[$RES] outlet detect on the ${INPUT^^} files, $REPS runs, on CPU 0 ..." >&2
+        TRUTH_DIR="$D/render" python3 "$PY" time-outlet "$OUTLET" "$REPS" "$D"/pasted/*."$INPUT" >"$D/outlet_$INPUT.json"
+        out="$(python3 "$PY" summary "$RES, ${INPUT^^}" "$D/outlet_$INPUT.json" "$D/april_d1.txt" "$D/april_d2.txt")"
+        ROWS+=("$(grep -v '^JSON ' <<<"$out")")
+        JSONS+=("$(grep '^JSON ' <<<"$out" | sed 's/^JSON //')")
+    done
 done
 
 if [[ -n "$KEEP" ]]; then
@@ -151,8 +156,9 @@ echo
 echo "$VERSIONS"
 echo "N = $COUNT images per resolution, $REPS repetitions, one core (taskset -c 0); ms, medians over the images."
 echo "wall: outlet's own timing_ms.detect (Detector::detect, image decoded in memory) vs apriltag_detector_detect alone;"
-echo "CPU: outlet's process CPU time per image over a batch run ((N images - 1 image) / (N - 1), PNG decoding included)"
+echo "CPU: outlet's process CPU time per image over a batch run ((N images - 1 image) / (N - 1), reading included)"
 echo "     vs AprilTag's thread CPU time of PGM reading + detection. d1 / d2: AprilTag's quad_decimate 1 / 2."
+echo "PNG rows: outlet reads the colour PNG; PGM rows: outlet reads the same grey PGM file as AprilTag."
 echo
 echo "tracking: outlet detect --track 30 over each image repeated 6 times (a still camera), the frames a window found."
 echo

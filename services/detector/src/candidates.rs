@@ -187,17 +187,28 @@ impl Forest {
 struct Touch {
     root: Option<u32>,
     dead: bool,
+    /// The label looked at last.
+    last: u32,
 }
 
 impl Touch {
     #[inline]
     fn label(&mut self, forest: &mut Forest, l: u32) {
-        if l == NONE {
+        // Neighbouring runs mostly carry the same label: one look is enough.
+        if l == NONE || l == self.last {
             return;
         }
+        self.last = l;
         match if l == DEAD { None } else { forest.find(l) } {
+            // Once dead, every live component touched dies too: no need to merge it first.
+            Some(r) if self.dead => forest.parent[r as usize] = DEAD,
             Some(r) => self.root = Some(self.root.map_or(r, |t| forest.union(t, r))),
-            None => self.dead = true,
+            None => {
+                if let Some(r) = self.root.take() {
+                    forest.parent[r as usize] = DEAD;
+                }
+                self.dead = true;
+            }
         }
     }
 }
@@ -229,6 +240,7 @@ struct Scratch {
     runs: Vec<Run>,
     bands: Vec<u8>,
     row_start: Vec<u32>,
+    band_row: Vec<u8>,
     at: Vec<u32>,
     start: Vec<u32>,
     order: Vec<u32>,
@@ -253,12 +265,27 @@ fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) 
     let padded = (w + 2).checked_mul(h + 2).filter(|&n| n < DEAD as usize);
     let pixels = grey.as_raw().get(..w * h).filter(|p| !p.is_empty());
     let (Some(&top), Some(padded), Some(pixels)) = (levels.last(), padded, pixels) else { return Vec::new() };
-    let Scratch { rows, smooth, runs, bands, row_start, at, start, order, label, parent, blobs, alive, found, grid } =
-        scratch;
+    let Scratch {
+        rows,
+        smooth,
+        runs,
+        bands,
+        row_start,
+        band_row,
+        at,
+        start,
+        order,
+        label,
+        parent,
+        blobs,
+        alive,
+        found,
+        grid,
+    } = scratch;
     smooth_3x3(pixels, w, h, rows, smooth);
     let smooth: &[u8] = smooth;
 
-    runs_of_rows(smooth, w, &levels, top, runs, bands, row_start, at);
+    runs_of_rows(smooth, w, &levels, top, runs, bands, row_start, band_row, at);
     if runs.len() >= DEAD as usize {
         return Vec::new();
     }
@@ -281,7 +308,7 @@ fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) 
             // Union with every live component around; any dead one kills the lot.
             // The order (above, below, left, right) is the pixels' raster order
             // around the run, so the forest grows as a pixel-wise labelling would.
-            let mut touch = Touch { root: None, dead: false };
+            let mut touch = Touch { root: None, dead: false, last: NONE };
             for &l in label[run.above[0] as usize..run.above[1] as usize]
                 .iter()
                 .chain(&label[run.below[0] as usize..run.below[1] as usize])
@@ -295,7 +322,7 @@ fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) 
             if i + 1 < runs.len() && runs[i + 1].y == run.y && run.x + run.len == runs[i + 1].x {
                 touch.label(&mut forest, label[i + 1]);
             }
-            let Touch { root, dead } = touch;
+            let Touch { root, dead, .. } = touch;
             let (fill, new) = forest.add(Blob::run(run.x, run.y, run.len), root, dead);
             alive.extend(new.map(|n| (n, 0)));
             label[i] = fill;
@@ -329,8 +356,8 @@ fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) 
 /// band `levels.len()`, in no component), each run's band, where each row's runs
 /// start, and which runs of the rows above and below each run touches. The runs of
 /// a row cover it, so the runs touching pixels x0 - 1..=x1 of a neighbouring row are
-/// the index range from the run at x0 - 1 to the run at x1: `at` holds the run index
-/// of every pixel of the last two rows.
+/// the index range from the run at x0 - 1 to the run at x1. `band_row` holds one
+/// row's bands, `at` the run index of every pixel of the last two rows.
 #[allow(clippy::too_many_arguments)]
 fn runs_of_rows(
     smooth: &[u8],
@@ -340,6 +367,7 @@ fn runs_of_rows(
     runs: &mut Vec<Run>,
     bands: &mut Vec<u8>,
     row_start: &mut Vec<u32>,
+    band_row: &mut Vec<u8>,
     at: &mut Vec<u32>,
 ) {
     let count = levels.len() as u8;
@@ -350,25 +378,53 @@ fn runs_of_rows(
     runs.clear();
     bands.clear();
     row_start.clear();
+    band_row.clear();
+    band_row.resize(w, 0);
     at.clear();
     at.resize(2 * w, 0);
     let (mut prev, mut cur) = at.split_at_mut(w);
     for (y, row) in smooth.chunks_exact(w).enumerate() {
         let first = runs.len();
         row_start.push(first as u32);
-        let (mut x0, mut band) = (0, band_of[row[0] as usize]);
-        for (x, &v) in row.iter().enumerate().skip(1) {
-            let b = band_of[v as usize];
-            if b != band {
-                runs.push(Run { x: x0 as u32, y: y as u32, len: (x - x0) as u32, ..Run::default() });
-                bands.push(band);
-                (x0, band) = (x, b);
+        for (b, &v) in band_row.iter_mut().zip(row) {
+            *b = band_of[v as usize];
+        }
+        let mut x0 = 0;
+        let mut push = |x0: usize, x1: usize| {
+            runs.push(Run { x: x0 as u32, y: y as u32, len: (x1 - x0) as u32, ..Run::default() });
+            bands.push(band_row[x0]);
+        };
+        // Where the band changes, eight pixels at a time: a run is ten pixels on
+        // average, so a branch per pixel mispredicts at every run's end.
+        let mut x = 1;
+        while x + 8 <= w {
+            let word = |at: usize| {
+                let mut b = [0u8; 8];
+                b.copy_from_slice(&band_row[at..at + 8]);
+                u64::from_le_bytes(b)
+            };
+            let mut changed = nonzero_bytes(word(x) ^ word(x - 1));
+            while changed != 0 {
+                let t = x + (changed.trailing_zeros() / 8) as usize;
+                push(x0, t);
+                x0 = t;
+                changed &= changed - 1;
+            }
+            x += 8;
+        }
+        for x in x..w {
+            if band_row[x] != band_row[x - 1] {
+                push(x0, x);
+                x0 = x;
             }
         }
-        runs.push(Run { x: x0 as u32, y: y as u32, len: (w - x0) as u32, ..Run::default() });
-        bands.push(band);
-        for (i, run) in runs.iter().enumerate().skip(first) {
-            cur[run.x as usize..(run.x + run.len) as usize].fill(i as u32);
+        push(x0, w);
+        // The run index of every pixel of this row, without a branch.
+        let mut k = first as u32;
+        cur[0] = k;
+        for x in 1..w {
+            k += (band_row[x] != band_row[x - 1]) as u32;
+            cur[x] = k;
         }
         if y > 0 {
             let reach = |row: &[u32], run: &Run| {
@@ -387,6 +443,13 @@ fn runs_of_rows(
         std::mem::swap(&mut prev, &mut cur);
     }
     row_start.push(runs.len() as u32);
+}
+
+/// The high bit of each byte of `d` that is not zero, the others clear.
+#[inline]
+fn nonzero_bytes(d: u64) -> u64 {
+    const LOW7: u64 = 0x7f7f_7f7f_7f7f_7f7f;
+    (((d & LOW7) + LOW7) | d) & !LOW7
 }
 
 /// The runs' indices grouped by band (a counting sort, raster order within a band

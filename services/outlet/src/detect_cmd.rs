@@ -207,31 +207,36 @@ fn run_one(
     model_error: &outlet::ModelError,
 ) -> Result<Value> {
     let camera: Option<CameraModel> = job.camera.as_deref().map(read_camera_info).transpose()?;
-    let image = image::open(&job.image).with_context(|| format!("reading image {}", job.image.display()))?.to_rgb8();
-    if image.width() == 0 || image.height() == 0 {
+    let decoded = image::open(&job.image).with_context(|| format!("reading image {}", job.image.display()))?;
+    if decoded.width() == 0 || decoded.height() == 0 {
         bail!("image {} is empty", job.image.display());
     }
+    // A grey image (mono8 PNG, PGM) is what the detector works on: used as it is.
+    let (image, luma) = match decoded {
+        image::DynamicImage::ImageLuma8(grey) => (None, Some(grey)),
+        other => (Some(other.into_rgb8()), None),
+    };
+    let size = image.as_ref().map(|i| i.dimensions()).or(luma.as_ref().map(|g| g.dimensions())).unwrap_or_default();
     if let Some(c) = &camera
-        && (c.width, c.height) != image.dimensions()
+        && (c.width, c.height) != size
     {
-        bail!(
-            "image {} is {}x{} but camera_info says {}x{}",
-            job.image.display(),
-            image.width(),
-            image.height(),
-            c.width,
-            c.height
-        );
+        bail!("image {} is {}x{} but camera_info says {}x{}", job.image.display(), size.0, size.1, c.width, c.height);
     }
     let detector = detectors.get(&job.template)?;
     let t = Instant::now();
+    // The timing starts before a colour frame is made grey, as `Detector::detect` times it.
+    let grey = match (luma, &image) {
+        (Some(grey), _) => grey,
+        (None, Some(rgb)) => grey_of(rgb),
+        (None, None) => bail!("image {} has no pixels", job.image.display()),
+    };
     let (report, searched) = match tracking {
         Some(tracking) => {
             let time_s = tracking.frame as f64 / tracking.fps;
             tracking.frame += 1;
             let tracker =
                 tracking.trackers.entry(job.template.clone()).or_insert_with(|| Tracker::new(TrackParams::default()));
-            let tracked = tracker.detect_grey(detector, &grey_of(&image), camera.as_ref(), time_s);
+            let tracked = tracker.detect_grey(detector, &grey, camera.as_ref(), time_s);
             let searched = match tracked.searched {
                 Searched::Window(_) => "window",
                 Searched::FullFrame { after_window: false } => "full_frame",
@@ -239,7 +244,7 @@ fn run_one(
             };
             (tracked.report, Some(searched))
         }
-        None => (detector.detect(&image, camera.as_ref()), None),
+        None => (detector.detect_grey(&grey, camera.as_ref()), None),
     };
     let detect_ms = t.elapsed().as_secs_f64() * 1e3;
     if let Some(path) = annotate {
@@ -250,6 +255,7 @@ fn run_one(
         } else {
             path.to_path_buf()
         };
+        let image = image.unwrap_or_else(|| image::DynamicImage::ImageLuma8(grey).to_rgb8());
         outlet_detector::annotate::draw_report(&image, &report)
             .save_with_format(&out, image::ImageFormat::Png)
             .with_context(|| format!("writing {}", out.display()))?;

@@ -111,6 +111,62 @@ fn detect_json_gives_one_line_per_image_in_order_and_goes_on_after_a_bad_one() {
     }
 }
 
+/// A grey frame (a mono camera's, or the PGM a fiducial detector reads) is detected
+/// as it is: the same holes as from the colour frame made grey the detector's way.
+#[test]
+fn grey_pgm_and_mono_png_frames_are_detected_and_a_truncated_pgm_is_named() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let seed = frontal_seed("white2x2");
+    render(dir.path(), "white2x2", 1, seed);
+    let colour = image_of(dir.path(), "white2x2_0000");
+    let rgb = image::open(&colour).expect("rendered image").to_rgb8();
+    let grey = outlet_detector::grey_of(&rgb);
+    let pgm = dir.path().join("grey.pgm");
+    let mono = dir.path().join("grey.png");
+    grey.save(&pgm).expect("write pgm");
+    grey.save(&mono).expect("write mono png");
+    let bytes = std::fs::read(&pgm).expect("pgm");
+    let truncated = dir.path().join("truncated.pgm");
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).expect("write");
+    let out = outlet(&[
+        "detect",
+        "--template",
+        "2x2",
+        "--json",
+        &colour,
+        pgm.to_str().expect("utf-8"),
+        mono.to_str().expect("utf-8"),
+        truncated.to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let records = lines(&out);
+    assert_eq!(records.len(), 4);
+    let t = truth(dir.path(), "white2x2_0000");
+    let pixels = |r: &Value| -> Vec<[f64; 2]> {
+        r["holes"]
+            .as_array()
+            .map(|h| {
+                h.iter()
+                    .map(|h| [h["pixel"][0].as_f64().unwrap_or(f64::NAN), h["pixel"][1].as_f64().unwrap_or(f64::NAN)])
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let want = pixels(&records[0]);
+    assert_eq!(want.len(), 12, "colour frame: {}", records[0]);
+    for r in &records[1..3] {
+        assert_eq!(r["found"], Value::Bool(true), "{r}");
+        // Made grey the same way, the grey files give the colour frame's holes to the bit.
+        assert_eq!(pixels(r), want, "{r}");
+        for (h, g) in r["holes"].as_array().expect("holes").iter().zip(t["holes"].as_array().expect("truth")) {
+            assert_eq!(h["kind"], g["kind"]);
+        }
+    }
+    let bad = &records[3];
+    assert_eq!(bad["found"], Value::Bool(false));
+    assert!(bad["error"].as_str().is_some_and(|e| e.contains("truncated.pgm")), "{bad}");
+}
+
 #[test]
 fn no_processable_input_is_a_failure_and_a_negative_is_found_false() {
     let dir = tempfile::tempdir().expect("tmp");

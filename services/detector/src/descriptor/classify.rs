@@ -3,21 +3,14 @@
 //! candidate's size implies.
 
 use super::poses::{crop_offsets, normalise};
-use super::{CLASSES, Classification, DescriptorParams, HEAD_DIMS, LANES, MAX_CROP, OneWayDescriptor, TrainingFeature};
+use super::{CLASSES, Classification, DescriptorParams, MAX_CROP, OneWayDescriptor, TrainingFeature};
 use crate::{Candidate, Class};
 use image::GrayImage;
 use nalgebra::Point2;
 
-/// Adds the squared differences between `query` and 8 samples stored
-/// dimension-major (`samples[d * 8 + lane]`) to `acc`.
-#[inline]
-fn accumulate(acc: &mut [f32; LANES], query: &[f32], samples: &[f32]) {
-    for (&q, s) in query.iter().zip(samples.chunks_exact(LANES)) {
-        for l in 0..LANES {
-            let d = s[l] - q;
-            acc[l] += d * d;
-        }
-    }
+thread_local! {
+    /// The search's per-group bounds, kept between calls.
+    static BOUNDS: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 impl OneWayDescriptor {
@@ -121,33 +114,9 @@ impl OneWayDescriptor {
         normalise(out, self.params.normalisation);
     }
 
-    /// Nearest squared distance per class to the projected query (exact, brute
-    /// force over 8 samples at a time).
+    /// Nearest squared distance per class to the projected query (exact).
     fn nearest(&self, query: &[f32]) -> [f32; 3] {
-        let dims = self.dims;
-        let mut best = [f32::INFINITY; 3];
-        let mut start = 0;
-        for (c, &count) in self.counts.iter().enumerate() {
-            let len = count.div_ceil(LANES) * LANES * dims;
-            let Some(class_samples) = self.samples.get(start..start + len) else { break };
-            start += len;
-            // Partial distances over the leading (largest-variance) dimensions
-            // already exceed the best so far for most blocks: skip the rest then.
-            let head = dims.min(HEAD_DIMS);
-            let mut lowest = f32::INFINITY;
-            for block in class_samples.chunks_exact(LANES * dims) {
-                let (first, rest) = block.split_at(head * LANES);
-                let mut acc = [0.0f32; LANES];
-                accumulate(&mut acc, &query[..head], first);
-                if acc.iter().all(|&a| a >= lowest) {
-                    continue;
-                }
-                accumulate(&mut acc, &query[head..], rest);
-                lowest = acc.iter().fold(lowest, |a, &b| a.min(b));
-            }
-            best[c] = lowest;
-        }
-        best
+        crate::with_scratch(&BOUNDS, |bounds| self.index.nearest(query, bounds))
     }
 
     /// The class for nearest distances per class (power, ground, background),

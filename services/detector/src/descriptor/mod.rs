@@ -33,6 +33,7 @@
 //! ```
 
 mod classify;
+mod nearest;
 mod poses;
 mod training;
 
@@ -282,6 +283,8 @@ pub struct OneWayDescriptor {
     counts: [usize; 3],
     /// Median scale of the training holes (image pixels per patch pixel).
     reference_scale: f64,
+    /// `samples` in the nearest-neighbour search's order (made from them, not stored).
+    index: nearest::SampleIndex,
 }
 
 /// The serialised form of [`OneWayDescriptor`], before its checks.
@@ -333,6 +336,7 @@ impl TryFrom<DescriptorData> for OneWayDescriptor {
         if ![&d.mean, &d.basis, &d.samples].iter().all(|v| v.iter().all(|x| x.is_finite())) {
             return Err(DescriptorError::Inconsistent("mean, basis or samples hold a value that is not finite"));
         }
+        let index = nearest::SampleIndex::new(d.dims, &d.samples, d.counts);
         Ok(Self {
             params: d.params,
             dims: d.dims,
@@ -342,6 +346,7 @@ impl TryFrom<DescriptorData> for OneWayDescriptor {
             samples: d.samples,
             counts: d.counts,
             reference_scale: d.reference_scale,
+            index,
         })
     }
 }

@@ -107,6 +107,7 @@ pub fn train_with(
         samples: Vec::new(),
         counts,
         reference_scale: 1.0,
+        index: Default::default(),
     };
     // Project, and store in blocks of 8 samples, dimension-major.
     let padded: usize = counts.iter().map(|c| c.div_ceil(LANES) * LANES).sum();
@@ -124,6 +125,7 @@ pub fn train_with(
         first_raw += count;
         first_out += count.div_ceil(LANES) * LANES;
     }
+    descriptor.index = super::nearest::SampleIndex::new(dims, &samples, counts);
     descriptor.samples = samples;
 
     let mut hole_scales: Vec<f64> = features.iter().filter(|f| f.class != Class::Background).map(|f| f.scale).collect();
