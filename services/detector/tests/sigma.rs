@@ -25,6 +25,8 @@ fn sigma_px_matches_the_actual_centre_error() {
     let params = RefineParams::default();
     // Squared error over sigma, per axis, per hole.
     let mut z2 = Vec::new();
+    // The same for sharp edges (1 px) and for edges blur widened (2 px and more).
+    let (mut sharp, mut soft) = (Vec::new(), Vec::new());
     let mut per_scenario = Vec::new();
     for scenario in
         ["fw_2x1white", "orange2x1", "whitehall2x1", "cracked2x2", "fw_2x2orange", "white2x2", "specular2x2"]
@@ -41,8 +43,16 @@ fn sigma_px_matches_the_actual_centre_error() {
                 let guess = Point2::new(truth.pixel[0] + rng.range(-1.0, 1.0), truth.pixel[1] + rng.range(-1.0, 1.0));
                 if let Some(r) = refine_hole(&grey, guess, &j, outline, &params) {
                     assert!(r.sigma_px > 0.0 && r.sigma_px.is_finite());
-                    z2.push(((r.centre.x - truth.pixel[0]) / r.sigma_px).powi(2));
-                    z2.push(((r.centre.y - truth.pixel[1]) / r.sigma_px).powi(2));
+                    let axes = [
+                        ((r.centre.x - truth.pixel[0]) / r.sigma_px).powi(2),
+                        ((r.centre.y - truth.pixel[1]) / r.sigma_px).powi(2),
+                    ];
+                    z2.extend(axes);
+                    if r.edge_px <= 1.0 {
+                        sharp.extend(axes);
+                    } else if r.edge_px >= 2.0 {
+                        soft.extend(axes);
+                    }
                 }
             }
         }
@@ -58,4 +68,16 @@ fn sigma_px_matches_the_actual_centre_error() {
         println!("  {scenario}: RMS {r:.2}");
     }
     assert!((0.6..=1.6).contains(&rms), "RMS of error / sigma_px {rms:.2}");
+    // Blur must not make the sigmas lie: without the edge's factor the blurred
+    // holes' RMS is 1.23 times the sharp ones' here (with it 0.92).
+    let rms_of = |v: &[f64]| (v.iter().sum::<f64>() / v.len().max(1) as f64).sqrt();
+    let (rs, rb) = (rms_of(&sharp), rms_of(&soft));
+    println!("sharp edges: {} axes, RMS {rs:.2}; edges 2 px and wider: {} axes, RMS {rb:.2}", sharp.len(), soft.len());
+    assert!(
+        sharp.len() >= 100 && soft.len() >= 100,
+        "too few holes of either kind: {} and {}",
+        sharp.len(),
+        soft.len()
+    );
+    assert!((0.75..=1.15).contains(&(rb / rs)), "blurred holes' RMS {rb:.2} against sharp ones' {rs:.2}");
 }
