@@ -331,8 +331,9 @@ fn label_every_level(grey: &GrayImage, params: &CandidateParams) -> Vec<Candidat
 #[test]
 fn one_pass_component_tree_matches_labelling_every_level() {
     let mut rng = SimRng::new(17);
-    for trial in 0..60 {
-        let (w, h) = (8 + rng.below(60) as u32, 8 + rng.below(50) as u32);
+    for trial in 0..120 {
+        // Widths from 1 px: the band changes are found eight pixels at a time, the rest one by one.
+        let (w, h) = (1 + rng.below(67) as u32, 1 + rng.below(57) as u32);
         // A bright, noisy background with dark discs and bars of random size and depth.
         let background = rng.range(60.0, 250.0);
         let noise = rng.range(0.0, 30.0);
