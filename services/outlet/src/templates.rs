@@ -1,7 +1,6 @@
 //! The built-in templates `2x1` and `2x2`, trained as the paper trains: from ONE
-//! image of an outlet (here rendered: white, frontal, 30 cm, even light, a real
-//! camera's blur) and background images (rendered walls, plates and switches
-//! without an outlet).
+//! image of an outlet (here rendered: white, frontal, 30 cm, even light) and
+//! background images (rendered walls, plates and switches without an outlet).
 
 use anyhow::{Context, Result};
 use nalgebra::{Point2, Vector3};
@@ -95,11 +94,7 @@ pub fn builtin(name: &str) -> Result<Template> {
         scene.hole_glint = 0.0;
         scene.light.position_cam_m = nalgebra::Point3::new(0.1, -0.3, -0.1);
         scene.sensor.exposure = 1.0;
-        // A real camera's softness: trained on sharp renders the descriptor took
-        // real holes for background (views of the Willow photograph near head-on:
-        // 19 of 80 found; with 0.6 px of blur 41, 0.9 px 60 but 3 with holes 5-8 px
-        // off; BENCHMARKS.md, "Session 10: built-in templates trained on soft views").
-        scene.sensor.blur_sigma = 0.6;
+        scene.sensor.blur_sigma = 0.0;
         scene.sensor.jpeg_quality = None;
         let frame = render_frame(&scene, "training");
         greys.push(grey_of(&frame.frame.image));
