@@ -85,8 +85,9 @@ pub struct RefineParams {
     /// interpolation correlate neighbours, and the outline is not the exact hole,
     /// so the plain figure is too small. 4.5 alone made the RMS of error over sigma
     /// 1 on rendered scenes of every scenario, but 0.87 on sharp holes and 1.27 on
-    /// blurred ones; with the edge's factor 4.1 keeps the overall figure and makes
-    /// it even across edge widths (`tests/sigma.rs`; plain: 2.8).
+    /// blurred ones; with the edge's factor 4.1 kept the overall figure and made
+    /// it even across edge widths (`tests/sigma.rs`; plain: 2.8). With
+    /// [`Self::outline_sigma_mm`] beside it, 3.3 (session 11).
     pub sigma_scale: f64,
     /// A window with more pixels than this is sampled every k-th pixel in each
     /// direction (k the smallest that brings it under): a hole 150 px across
@@ -97,6 +98,30 @@ pub struct RefineParams {
     /// Width (pixels) of the outline's edge in the model: the coverage ramps from
     /// face to opening over this many pixels across the outline.
     pub edge_px: f64,
+    /// The robust fit's Huber weights are computed in this many first
+    /// iterations, then held. Recomputed in every one, each new weighting moved
+    /// the optimum by about a hundredth of a pixel and the fit crept that way
+    /// until the iteration cap (8.6 of 10 on average), discounting more and
+    /// more of the very edge pixels that place the outline: held after two,
+    /// it converges in 4.6 and the median hole error falls by a tenth in every
+    /// scenario (BENCHMARKS.md, "Session 11"); but see
+    /// [`Self::hold_weights_to_px_per_mm`].
+    pub reweightings: usize,
+    /// Weights are held after [`Self::reweightings`] only for holes seen at
+    /// most this many pixels per mm of the face; larger ones reweight in every
+    /// iteration. Up close the inside of a hole (its side walls, the contacts'
+    /// shading) covers many pixels the outline does not draw, and the weights
+    /// that keep discounting them placed those holes better: with the weights
+    /// held, the median hole error of approaches at slot pitches of 44 px and
+    /// more (3.5 px/mm) rose by 15-25%, while up to 33 px (2.6 px/mm) it fell by
+    /// 5-15% (`outlet eval --approach`).
+    pub hold_weights_to_px_per_mm: f64,
+    /// The outline model's own error on the face (mm), added in quadrature to
+    /// the fit's sigma: a hole's side wall, chamfer or the shading inside it
+    /// moves the fitted centre by a share of the hole's size whatever the
+    /// noise, so that near holes (many pixels, a tiny fit sigma) were the
+    /// overconfident ones (error over sigma 1.5 times the far holes').
+    pub outline_sigma_mm: f64,
 }
 
 impl Default for RefineParams {
@@ -107,9 +132,12 @@ impl Default for RefineParams {
             max_shift_px: 3.0,
             min_relative_contrast: 0.12,
             min_sigma_px: 0.02,
-            sigma_scale: 4.1,
+            sigma_scale: 3.3,
             max_pixels: 3000,
             edge_px: 1.0,
+            reweightings: 2,
+            hold_weights_to_px_per_mm: 3.0,
+            outline_sigma_mm: 0.05,
         }
     }
 }
@@ -126,6 +154,8 @@ pub struct Refined {
     /// covariance of the offset, sigma^2 (J^T W J)^-1 with sigma^2 the weighted
     /// residual variance, as the RMS of its two axes, times
     /// [`RefineParams::sigma_scale`], at least [`RefineParams::min_sigma_px`].
+    /// From [`refine_hole`] also times [`edge_sigma_factor`] and with
+    /// [`RefineParams::outline_sigma_mm`] in quadrature.
     pub sigma_px: f64,
     /// Share of the grey-level variance in the window that the outline model
     /// explains (R^2, 0..1): near 1 for a clear opening of the predicted shape.
@@ -155,12 +185,14 @@ pub fn refine_hole(
     // very pixels that pull the outline into place), then re-centre the window and
     // let Huber weights discount what the outline does not explain.
     let window = shape.half_extent();
-    let rough = fit(grey, guess, mm_to_px, shape, params, false, window, false)?;
-    let fine = fit(grey, rough.centre, mm_to_px, shape, params, true, window, true)?;
+    let rough = fit(grey, guess, mm_to_px, shape, params, FitMode::ROUGH, window)?;
+    let fine = fit(grey, rough.centre, mm_to_px, shape, params, FitMode::FINE, window)?;
     if (fine.centre - guess).norm() > params.max_shift_px {
         return None;
     }
-    let sigma_px = (fine.sigma_px * edge_sigma_factor(fine.edge_px)).max(params.min_sigma_px);
+    let px_per_mm = mm_to_px.determinant().abs().sqrt();
+    let outline = params.outline_sigma_mm * px_per_mm;
+    let sigma_px = (fine.sigma_px * edge_sigma_factor(fine.edge_px)).hypot(outline).max(params.min_sigma_px);
     Some(Refined { sigma_px, ..fine })
 }
 
@@ -173,6 +205,22 @@ pub fn refine_hole(
 /// grows by 0.58 per pixel of edge width. Wider than 3 px is not told apart.
 pub fn edge_sigma_factor(edge_px: f64) -> f64 {
     (1.0 + 0.58 * (edge_px.clamp(1.0, 3.0) - 1.0)).sqrt()
+}
+
+/// Huber weights of `residuals` into `weights`, the threshold 1.5 robust
+/// standard deviations (from the median absolute residual, at least one grey
+/// level). `abs` is scratch.
+fn huber_weights(residuals: &[f64], abs: &mut Vec<f64>, weights: &mut [f64]) {
+    // The median absolute residual (a selection, not a sort: this runs in
+    // every fit).
+    abs.clear();
+    abs.extend(residuals.iter().map(|v| v.abs()));
+    let mid = abs.len() / 2;
+    let median = *abs.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let k = 1.5 * (median / 0.6745).max(1.0);
+    for (w, v) in weights.iter_mut().zip(residuals) {
+        *w = if v.abs() <= k { 1.0 } else { k / v.abs() };
+    }
 }
 
 /// Edge widths (pixels) tried for [`Refined::edge_px`].
@@ -189,7 +237,7 @@ pub fn outline_at(
     params: &RefineParams,
 ) -> Option<Refined> {
     let fixed = RefineParams { iterations: 0, ..*params };
-    fit(grey, centre, mm_to_px, shape, &fixed, true, shape.half_extent(), false)
+    fit(grey, centre, mm_to_px, shape, &fixed, FitMode::CHECK, shape.half_extent())
 }
 
 /// How much better a hole's own outline explains the pixels than another one
@@ -212,27 +260,50 @@ pub fn compare_outlines(
     let sse = |r: &Refined| r.rms * r.rms * r.pixels as f64;
     // Both start at the refined centre: a few steps settle them (time).
     let params = &RefineParams { iterations: params.iterations.min(3), ..*params };
-    let mine = fit(grey, centre, mm_to_px, own, params, true, window, false)?;
-    let theirs = fit(grey, centre, &other.1, other.0, params, true, window, false);
+    let mine = fit(grey, centre, mm_to_px, own, params, FitMode::COMPARE, window)?;
+    let theirs = fit(grey, centre, &other.1, other.0, params, FitMode::COMPARE, window);
     // The other outline finding no dark opening at all is evidence for this one:
     // it counts as explaining nothing beyond the window's mean.
     let theirs = theirs.map_or(mine.total_ss, |r| sse(&r));
     Some([theirs - sse(&mine), sse(&mine)])
 }
 
-#[allow(clippy::too_many_arguments)]
+/// What one outline fit is for: which of its results are wanted decides what it
+/// computes (the sigma's normal equations and the edge width cost as much as a
+/// few iterations, and most fits use neither).
+#[derive(Debug, Clone, Copy)]
+struct FitMode {
+    /// Huber weights and the ramp inside the outline (the fine fit).
+    robust: bool,
+    /// Measure the edge's width ([`Refined::edge_px`]).
+    measure_edge: bool,
+    /// Compute the centre's covariance ([`Refined::sigma_px`]); without it the
+    /// sigma is reported as `max_shift_px`.
+    sigma: bool,
+}
+
+impl FitMode {
+    /// The first, plain fit of [`refine_hole`]: only its centre is used.
+    const ROUGH: Self = Self { robust: false, measure_edge: false, sigma: false };
+    /// The final fit of [`refine_hole`].
+    const FINE: Self = Self { robust: true, measure_edge: true, sigma: true };
+    /// [`outline_at`]: the outline where it is put, with its sigma.
+    const CHECK: Self = Self { robust: true, measure_edge: false, sigma: true };
+    /// [`compare_outlines`]: only the residuals are used.
+    const COMPARE: Self = Self { robust: true, measure_edge: false, sigma: false };
+}
+
 fn fit(
     grey: &GrayImage,
     guess: Point2<f64>,
     mm_to_px: &Matrix2<f64>,
     shape: HoleShape,
     params: &RefineParams,
-    robust: bool,
+    mode: FitMode,
     window_mm: [f64; 2],
-    measure_edge: bool,
 ) -> Option<Refined> {
     crate::with_scratch(&FIT_SCRATCH, |scratch| {
-        fit_with(grey, guess, mm_to_px, shape, params, robust, window_mm, measure_edge, scratch)
+        fit_with(grey, guess, mm_to_px, shape, params, mode, window_mm, scratch)
     })
 }
 
@@ -260,11 +331,11 @@ fn fit_with(
     mm_to_px: &Matrix2<f64>,
     shape: HoleShape,
     params: &RefineParams,
-    robust: bool,
+    mode: FitMode,
     window_mm: [f64; 2],
-    measure_edge: bool,
     scratch: &mut FitScratch,
 ) -> Option<Refined> {
+    let FitMode { robust, measure_edge, sigma } = mode;
     let FitScratch { pixels, weights, cov, cov_dx, cov_dy, abs, r } = scratch;
     let px_to_mm = mm_to_px.try_inverse()?;
     let [ex, ey] = window_mm;
@@ -310,18 +381,47 @@ fn fit_with(
         }
     };
     let coverage = |t: Vector2<f64>, out: &mut Vec<(f64, Vector2<f64>)>| coverage_with(t, pixel_mm, out);
+    // The coverage at `t` and one finite-difference step along x and along y,
+    // in one pass over the pixels (the same values as three passes).
+    let step = 0.05;
+    let coverage3 = |t: Vector2<f64>,
+                     out: &mut Vec<(f64, Vector2<f64>)>,
+                     out_dx: &mut Vec<(f64, Vector2<f64>)>,
+                     out_dy: &mut Vec<(f64, Vector2<f64>)>| {
+        out.clear();
+        out_dx.clear();
+        out_dy.clear();
+        let (tx, ty) = (t + Vector2::new(step, 0.0), t + Vector2::new(0.0, step));
+        for (d, _) in pixels {
+            for (out, t) in [(&mut *out, t), (&mut *out_dx, tx), (&mut *out_dy, ty)] {
+                let q = px_to_mm * (d - t);
+                out.push(((0.5 - shape.sd(q) / pixel_mm).clamp(0.0, 1.0), q));
+            }
+        }
+    };
     // Best linear parameters (face level a, inside level b, ramp cx, cy) for an
     // offset, and the residual vector.
     let solve = |cov: &[(f64, Vector2<f64>)], weights: &[f64], r: &mut Vec<f64>| -> Option<Vector4<f64>> {
         let mut ata = Matrix4::zeros();
         let mut atb = Vector4::zeros();
+        // Without the ramp while the outline is still far off: a ramp inside a
+        // misplaced outline would mimic the shift and stall the fit.
+        let ramp = if robust { 1.0 } else { 0.0 };
         for (((m, q), (_, v)), w) in cov.iter().zip(pixels).zip(weights) {
-            // Without the ramp while the outline is still far off: a ramp inside a
-            // misplaced outline would mimic the shift and stall the fit.
-            let ramp = if robust { 1.0 } else { 0.0 };
-            let row = Vector4::new(1.0 - m, *m, m * q.x * ramp, m * q.y * ramp);
-            ata += row * row.transpose() * *w;
-            atb += row * *v * *w;
+            let row = [1.0 - m, *m, m * q.x * ramp, m * q.y * ramp];
+            // The upper triangle only (the matrix is symmetric; each entry is
+            // the same product as in the full outer product).
+            for i in 0..4 {
+                for j in i..4 {
+                    ata[(i, j)] += row[i] * row[j] * *w;
+                }
+                atb[i] += row[i] * *v * *w;
+            }
+        }
+        for i in 0..4 {
+            for j in 0..i {
+                ata[(i, j)] = ata[(j, i)];
+            }
         }
         ata += Matrix4::identity() * 1e-6;
         let p = ata.cholesky()?.solve(&atb);
@@ -338,24 +438,18 @@ fn fit_with(
     // spot, a glint) should not drag the centre.
     weights.clear();
     weights.resize(pixels.len(), 1.0);
-    let step = 0.05;
-    for _ in 0..params.iterations {
-        coverage(t, cov);
+    // Large holes keep reweighting (see `RefineParams::hold_weights_to_px_per_mm`).
+    let reweightings = if px_to_mm.determinant().abs().sqrt().recip() <= params.hold_weights_to_px_per_mm {
+        params.reweightings
+    } else {
+        usize::MAX
+    };
+    for iteration in 0..params.iterations {
+        coverage3(t, cov, cov_dx, cov_dy);
         let p = solve(cov, weights, r)?;
-        // The median absolute residual (a selection, not a sort: this runs
-        // every iteration of every hole).
-        abs.clear();
-        abs.extend(r.iter().map(|v| v.abs()));
-        let mid = abs.len() / 2;
-        let median = *abs.select_nth_unstable_by(mid, f64::total_cmp).1;
-        let k = 1.5 * (median / 0.6745).max(1.0);
-        if robust {
-            for (w, v) in weights.iter_mut().zip(r.iter()) {
-                *w = if v.abs() <= k { 1.0 } else { k / v.abs() };
-            }
+        if robust && iteration < reweightings {
+            huber_weights(r, abs, weights);
         }
-        coverage(t + Vector2::new(step, 0.0), cov_dx);
-        coverage(t + Vector2::new(0.0, step), cov_dy);
         // d(model)/dt by finite differences of the coverage, linear parameters held.
         let model = |(m, q): &(f64, Vector2<f64>)| p[0] * (1.0 - m) + m * (p[1] + p[2] * q.x + p[3] * q.y);
         let mut jtj = Matrix2::zeros();
@@ -373,31 +467,37 @@ fn fit_with(
             break;
         }
     }
-    coverage(t, cov);
+    if sigma {
+        coverage3(t, cov, cov_dx, cov_dy);
+    } else {
+        coverage(t, cov);
+    }
     let p = solve(cov, weights, r)?;
     let rms = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
-    // The offset's covariance from the normal equations at the solution, scaled
-    // by the residual variance (6 parameters: two offsets, four linear).
-    coverage(t + Vector2::new(step, 0.0), cov_dx);
-    coverage(t + Vector2::new(0.0, step), cov_dy);
-    let model = |(m, q): &(f64, Vector2<f64>)| p[0] * (1.0 - m) + m * (p[1] + p[2] * q.x + p[3] * q.y);
-    let (mut jtj, mut wrr, mut wsum) = (Matrix2::zeros(), 0.0, 0.0);
-    for i in 0..pixels.len() {
-        let base = model(&cov[i]);
-        let j = Vector2::new((model(&cov_dx[i]) - base) / step, (model(&cov_dy[i]) - base) / step);
-        jtj += j * j.transpose() * weights[i];
-        wrr += weights[i] * r[i] * r[i];
-        wsum += weights[i];
-    }
-    let dof = (pixels.len() as f64 - 6.0).max(1.0);
-    // Weights below 1 count as fewer pixels: the variance per unit weight.
-    let variance = wrr / dof * (pixels.len() as f64 / wsum.max(1e-9));
-    let covariance = jtj.try_inverse().map(|inv| inv * variance);
-    let sigma_px = covariance
-        .map(|c| ((c[(0, 0)] + c[(1, 1)]) / 2.0).max(0.0).sqrt() * params.sigma_scale)
-        .filter(|s| s.is_finite())
-        .unwrap_or(params.max_shift_px)
-        .max(params.min_sigma_px);
+    let sigma_px = if sigma {
+        // The offset's covariance from the normal equations at the solution, scaled
+        // by the residual variance (6 parameters: two offsets, four linear).
+        let model = |(m, q): &(f64, Vector2<f64>)| p[0] * (1.0 - m) + m * (p[1] + p[2] * q.x + p[3] * q.y);
+        let (mut jtj, mut wrr, mut wsum) = (Matrix2::zeros(), 0.0, 0.0);
+        for i in 0..pixels.len() {
+            let base = model(&cov[i]);
+            let j = Vector2::new((model(&cov_dx[i]) - base) / step, (model(&cov_dy[i]) - base) / step);
+            jtj += j * j.transpose() * weights[i];
+            wrr += weights[i] * r[i] * r[i];
+            wsum += weights[i];
+        }
+        let dof = (pixels.len() as f64 - 6.0).max(1.0);
+        // Weights below 1 count as fewer pixels: the variance per unit weight.
+        let variance = wrr / dof * (pixels.len() as f64 / wsum.max(1e-9));
+        let covariance = jtj.try_inverse().map(|inv| inv * variance);
+        covariance
+            .map(|c| ((c[(0, 0)] + c[(1, 1)]) / 2.0).max(0.0).sqrt() * params.sigma_scale)
+            .filter(|s| s.is_finite())
+            .unwrap_or(params.max_shift_px)
+            .max(params.min_sigma_px)
+    } else {
+        params.max_shift_px
+    };
     let mean = pixels.iter().map(|(_, v)| v).sum::<f64>() / pixels.len() as f64;
     let total = pixels.iter().map(|(_, v)| (v - mean) * (v - mean)).sum::<f64>();
     let residual = r.iter().map(|v| v * v).sum::<f64>();

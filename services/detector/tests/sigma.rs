@@ -68,8 +68,11 @@ fn sigma_px_matches_the_actual_centre_error() {
         println!("  {scenario}: RMS {r:.2}");
     }
     assert!((0.6..=1.6).contains(&rms), "RMS of error / sigma_px {rms:.2}");
-    // Blur must not make the sigmas lie: without the edge's factor the blurred
-    // holes' RMS is 1.23 times the sharp ones' here (with it 0.92).
+    // Blur must not make the sigmas lie: the blurred holes' error over sigma at
+    // most 1 (RMS) and near the sharp ones'. Without the edge's factor the
+    // blurred holes' RMS is 1.16 here, 1.57 times the sharp ones' (with it 0.90
+    // and 1.22: since the fit holds its weights, session 11, sharp holes gain
+    // more accuracy than blurred ones).
     let rms_of = |v: &[f64]| (v.iter().sum::<f64>() / v.len().max(1) as f64).sqrt();
     let (rs, rb) = (rms_of(&sharp), rms_of(&soft));
     println!("sharp edges: {} axes, RMS {rs:.2}; edges 2 px and wider: {} axes, RMS {rb:.2}", sharp.len(), soft.len());
@@ -79,5 +82,6 @@ fn sigma_px_matches_the_actual_centre_error() {
         sharp.len(),
         soft.len()
     );
-    assert!((0.75..=1.15).contains(&(rb / rs)), "blurred holes' RMS {rb:.2} against sharp ones' {rs:.2}");
+    assert!(rb <= 1.0, "blurred holes' RMS of error / sigma_px {rb:.2}: their sigmas are too small");
+    assert!((0.75..=1.3).contains(&(rb / rs)), "blurred holes' RMS {rb:.2} against sharp ones' {rs:.2}");
 }

@@ -28,7 +28,15 @@ fn the_demos_frame_185_is_refused_or_else_a_plane_pose_within_a_millimetre() -> 
     let report = shipped.detect(&frame.frame.image, Some(&camera));
     match &report.detection {
         Some(d) => {
-            assert!(d.holes.iter().all(|h| h.refined), "frame 185 reported with a hole predicted, not fitted");
+            // Found: every hole fitted, or one predicted from at least the five
+            // fitted holes the shipped detector asks for (since session 11's
+            // outline fit, five are fitted here); either way within a
+            // millimetre and 5 sigma.
+            let fitted = d.holes.iter().filter(|h| h.refined).count();
+            assert!(
+                fitted >= DetectorParams::default().min_fitted_for_prediction,
+                "frame 185 reported with only {fitted} holes fitted"
+            );
             plane_pose_within_a_millimetre_and_5_sigma(&frame, &camera, d, &shipped)?;
         }
         None => {
