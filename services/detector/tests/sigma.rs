@@ -85,3 +85,44 @@ fn sigma_px_matches_the_actual_centre_error() {
     assert!(rb <= 1.0, "blurred holes' RMS of error / sigma_px {rb:.2}: their sigmas are too small");
     assert!((0.75..=1.3).contains(&(rb / rs)), "blurred holes' RMS {rb:.2} against sharp ones' {rs:.2}");
 }
+
+/// Session 11: the robust fit holds its Huber weights after two iterations
+/// (for holes up to 3 px/mm). Reweighted in every iteration it crept towards
+/// discounting the very edge pixels that place the outline, until its cap.
+#[test]
+fn holding_the_weights_places_holes_closer_than_reweighting_every_iteration() {
+    let camera = CameraModel::default_vga();
+    let mut rng = outlet_sim::rng::SimRng::new(12);
+    let held = RefineParams::default();
+    let every = RefineParams { reweightings: usize::MAX, ..held };
+    let (mut errors_held, mut errors_every) = (Vec::new(), Vec::new());
+    for scenario in ["fw_2x1white", "orange2x1", "cracked2x2", "white2x2"] {
+        for index in 0..6 {
+            let scene = sample_scene(scenario, 41, index, &camera).expect("scene");
+            let frame = render_frame(&scene, "x");
+            let grey = grey_of(&frame.frame.image);
+            let geometry = scene.geometry().expect("outlet");
+            let outlines = HoleShape::us_outlines(&geometry);
+            for ((hole, truth), outline) in geometry.holes.iter().zip(&frame.truth.holes).zip(outlines) {
+                let j = jacobian(&scene, hole.position_mm);
+                let guess = Point2::new(truth.pixel[0] + rng.range(-1.0, 1.0), truth.pixel[1] + rng.range(-1.0, 1.0));
+                let truth = Point2::new(truth.pixel[0], truth.pixel[1]);
+                if let (Some(a), Some(b)) =
+                    (refine_hole(&grey, guess, &j, outline, &held), refine_hole(&grey, guess, &j, outline, &every))
+                {
+                    errors_held.push((a.centre - truth).norm());
+                    errors_every.push((b.centre - truth).norm());
+                }
+            }
+        }
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let n = errors_held.len();
+    let (held, every) = (median(&mut errors_held), median(&mut errors_every));
+    println!("{n} holes: median error {held:.3} px with the weights held, {every:.3} px reweighted every iteration");
+    assert!(n >= 150, "only {n} holes fitted");
+    assert!(held < 0.95 * every, "held {held:.3} px against {every:.3} px");
+}
