@@ -18,9 +18,31 @@ fn jacobian(scene: &outlet_sim::Scene, hole_mm: [f64; 2]) -> Matrix2<f64> {
     Matrix2::new(dx.x, dy.x, dx.y, dy.y) * 2.0
 }
 
+/// Every hole of views `0..count` of `scenario` (seed `seed`, the default VGA
+/// camera): the grey frame, the hole's true pixel, its mm-to-px Jacobian and
+/// its outline, in template order.
+fn each_rendered_hole(
+    scenario: &str,
+    seed: u64,
+    count: u64,
+    mut visit: impl FnMut(&image::GrayImage, Point2<f64>, &Matrix2<f64>, HoleShape),
+) {
+    let camera = CameraModel::default_vga();
+    for index in 0..count {
+        let scene = sample_scene(scenario, seed, index, &camera).expect("scene");
+        let frame = render_frame(&scene, "x");
+        let grey = grey_of(&frame.frame.image);
+        let geometry = scene.geometry().expect("outlet");
+        let outlines = HoleShape::us_outlines(&geometry);
+        for ((hole, truth), outline) in geometry.holes.iter().zip(&frame.truth.holes).zip(outlines) {
+            let j = jacobian(&scene, hole.position_mm);
+            visit(&grey, Point2::new(truth.pixel[0], truth.pixel[1]), &j, outline);
+        }
+    }
+}
+
 #[test]
 fn sigma_px_matches_the_actual_centre_error() {
-    let camera = CameraModel::default_vga();
     let mut rng = outlet_sim::rng::SimRng::new(11);
     let params = RefineParams::default();
     // Squared error over sigma, per axis, per hole.
@@ -32,30 +54,20 @@ fn sigma_px_matches_the_actual_centre_error() {
         ["fw_2x1white", "orange2x1", "whitehall2x1", "cracked2x2", "fw_2x2orange", "white2x2", "specular2x2"]
     {
         let first = z2.len();
-        for index in 0..8 {
-            let scene = sample_scene(scenario, 31, index, &camera).expect("scene");
-            let frame = render_frame(&scene, "x");
-            let grey = grey_of(&frame.frame.image);
-            let geometry = scene.geometry().expect("outlet");
-            let outlines = HoleShape::us_outlines(&geometry);
-            for ((hole, truth), outline) in geometry.holes.iter().zip(&frame.truth.holes).zip(outlines) {
-                let j = jacobian(&scene, hole.position_mm);
-                let guess = Point2::new(truth.pixel[0] + rng.range(-1.0, 1.0), truth.pixel[1] + rng.range(-1.0, 1.0));
-                if let Some(r) = refine_hole(&grey, guess, &j, outline, &params) {
-                    assert!(r.sigma_px > 0.0 && r.sigma_px.is_finite());
-                    let axes = [
-                        ((r.centre.x - truth.pixel[0]) / r.sigma_px).powi(2),
-                        ((r.centre.y - truth.pixel[1]) / r.sigma_px).powi(2),
-                    ];
-                    z2.extend(axes);
-                    if r.edge_px <= 1.0 {
-                        sharp.extend(axes);
-                    } else if r.edge_px >= 2.0 {
-                        soft.extend(axes);
-                    }
+        each_rendered_hole(scenario, 31, 8, |grey, truth, j, outline| {
+            let guess = Point2::new(truth.x + rng.range(-1.0, 1.0), truth.y + rng.range(-1.0, 1.0));
+            if let Some(r) = refine_hole(grey, guess, j, outline, &params) {
+                assert!(r.sigma_px > 0.0 && r.sigma_px.is_finite());
+                let axes =
+                    [((r.centre.x - truth.x) / r.sigma_px).powi(2), ((r.centre.y - truth.y) / r.sigma_px).powi(2)];
+                z2.extend(axes);
+                if r.edge_px <= 1.0 {
+                    sharp.extend(axes);
+                } else if r.edge_px >= 2.0 {
+                    soft.extend(axes);
                 }
             }
-        }
+        });
         let part = &z2[first..];
         per_scenario.push((scenario, (part.iter().sum::<f64>() / part.len().max(1) as f64).sqrt()));
     }
@@ -91,30 +103,20 @@ fn sigma_px_matches_the_actual_centre_error() {
 /// discounting the very edge pixels that place the outline, until its cap.
 #[test]
 fn holding_the_weights_places_holes_closer_than_reweighting_every_iteration() {
-    let camera = CameraModel::default_vga();
     let mut rng = outlet_sim::rng::SimRng::new(12);
     let held = RefineParams::default();
     let every = RefineParams { reweightings: usize::MAX, ..held };
     let (mut errors_held, mut errors_every) = (Vec::new(), Vec::new());
     for scenario in ["fw_2x1white", "orange2x1", "cracked2x2", "white2x2"] {
-        for index in 0..6 {
-            let scene = sample_scene(scenario, 41, index, &camera).expect("scene");
-            let frame = render_frame(&scene, "x");
-            let grey = grey_of(&frame.frame.image);
-            let geometry = scene.geometry().expect("outlet");
-            let outlines = HoleShape::us_outlines(&geometry);
-            for ((hole, truth), outline) in geometry.holes.iter().zip(&frame.truth.holes).zip(outlines) {
-                let j = jacobian(&scene, hole.position_mm);
-                let guess = Point2::new(truth.pixel[0] + rng.range(-1.0, 1.0), truth.pixel[1] + rng.range(-1.0, 1.0));
-                let truth = Point2::new(truth.pixel[0], truth.pixel[1]);
-                if let (Some(a), Some(b)) =
-                    (refine_hole(&grey, guess, &j, outline, &held), refine_hole(&grey, guess, &j, outline, &every))
-                {
-                    errors_held.push((a.centre - truth).norm());
-                    errors_every.push((b.centre - truth).norm());
-                }
+        each_rendered_hole(scenario, 41, 6, |grey, truth, j, outline| {
+            let guess = Point2::new(truth.x + rng.range(-1.0, 1.0), truth.y + rng.range(-1.0, 1.0));
+            if let (Some(a), Some(b)) =
+                (refine_hole(grey, guess, j, outline, &held), refine_hole(grey, guess, j, outline, &every))
+            {
+                errors_held.push((a.centre - truth).norm());
+                errors_every.push((b.centre - truth).norm());
             }
-        }
+        });
     }
     let median = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);
