@@ -441,19 +441,19 @@ impl Detector {
                 // Found at half resolution, refined and verified again at full
                 // resolution: the half level's centres carry twice its pixel
                 // error (on the Willow views, 4-6 px where full resolution gives
-                // 1-2). Where the full level refuses, the half level's verified
-                // outlet stands, with its doubled sigma.
+                // 1-2). Where the full level refuses, so does the detector: the
+                // half level's outlet once stood in its place, and on a Willow
+                // view it held a hole predicted 6.8 px (2 mm) from the real one
+                // that full resolution had found to lie elsewhere; without it the
+                // approaches and the Willow views lost no other find.
                 let t = Instant::now();
                 let guesses: Vec<Option<Point2<f64>>> = d.holes.iter().map(|h| Some(h.pixel)).collect();
                 let full = self.refine(grey, &Lens { camera }, &d.homography, &guesses, d.score);
                 times.refine += ms_since(t);
-                match full {
-                    Ok(full) => Ok(full),
-                    Err(why) => {
-                        tracing::debug!(reason = %why, "half-resolution outlet not refined at full resolution");
-                        Ok(d)
-                    }
-                }
+                full.map_err(|why| {
+                    tracing::debug!(reason = %why, "half-resolution outlet refused at full resolution");
+                    Some(format!("found at half resolution, refused at full resolution: {why}"))
+                })
             }
             None => Err(report.rejected),
         };

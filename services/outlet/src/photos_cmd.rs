@@ -98,6 +98,13 @@ struct Evaluated {
     rejected: Option<String>,
     /// The labelled holes in this view (px), template order.
     truth_px: Vec<[f64; 2]>,
+    /// The found outlet's holes (px), template order; empty when none.
+    found_px: Vec<[f64; 2]>,
+    /// Per found hole: its centre fitted (true) or taken from the other holes'
+    /// homography where its outline shows (false).
+    fitted: Vec<bool>,
+    /// Per found hole: the evidence that it was seen ([`outlet_detector::DetectedHole::score`]).
+    scores: Vec<f64>,
 }
 
 /// The first of `dirs` (the labels' own folder first) that holds `name`.
@@ -392,8 +399,11 @@ fn evaluate(detector: &Detector, image: &RgbImage, camera: &CameraModel, truth: 
     let report = detector.detect(image, Some(camera));
     let ms = t.elapsed().as_secs_f64() * 1e3;
     let sigma_px = report.detection.as_ref().map(|d| d.holes.iter().map(|h| h.sigma_px).collect()).unwrap_or_default();
+    let scores = report.detection.as_ref().map(|d| d.holes.iter().map(|h| h.score).collect()).unwrap_or_default();
+    let fitted = report.detection.as_ref().map(|d| d.holes.iter().map(|h| h.refined).collect()).unwrap_or_default();
     let found: Option<Vec<Point2<f64>>> = report.detection.map(|d| d.holes.iter().map(|h| h.pixel).collect());
     let (correct, errors_px, tolerance_px) = judge(found.as_deref().unwrap_or(&[]), truth);
+    let found_px = found.iter().flatten().map(|p| [p.x, p.y]).collect();
     let kinds = detector.template().geometry.holes.iter().map(|h| Class::from(h.kind));
     let holes_classed = truth
         .iter()
@@ -412,6 +422,9 @@ fn evaluate(detector: &Detector, image: &RgbImage, camera: &CameraModel, truth: 
         holes_classed,
         rejected: report.rejected,
         truth_px: truth.iter().map(|p| [p.x, p.y]).collect(),
+        found_px,
+        fitted,
+        scores,
     }
 }
 

@@ -61,7 +61,10 @@ pub struct HashParams {
     pub min_score_floor: usize,
     /// Smallest ratio of the transform's singular values at any hole: cos of the
     /// largest off-axis angle, 0.5 = 60 degrees (the paper's views are within
-    /// 40; a chance 5-of-6 among clutter was at 0.46). Measured lower on the
+    /// 40; a chance 5-of-6 among clutter was at 0.46). With a camera
+    /// ([`Self::intrinsics`]) the ratio is taken along the ray to the hole
+    /// (`view_axis_ratio`), so that the angle is the face's to the ray wherever
+    /// the outlet lies in the image (session 12). Measured lower on the
     /// Willow photographs (BENCHMARKS.md): at 0.38 (68 degrees, with
     /// [`Self::oblique_axis_ratio`]) all nine photographs and 188 of 279 views
     /// were found against 129, but one steep, blurred view had a hole 5 px (10

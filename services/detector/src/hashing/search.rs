@@ -2,7 +2,7 @@
 //! each hypothesis scored (equation (2)), refined and verified (leave-one-out).
 
 use super::fit::{apply, fit_affine, fit_homography, fit_planar_pose};
-use super::{HashParams, HashTable, MAX_CANDIDATES, MAX_TEMPLATE_HOLES, axis_ratio, class_index, cross};
+use super::{HashParams, HashTable, MAX_CANDIDATES, MAX_TEMPLATE_HOLES, class_index, cross, view_axis_ratio};
 use crate::Class;
 use nalgebra::{Matrix2, Matrix3, Point2};
 use std::collections::HashSet;
@@ -207,7 +207,7 @@ impl<'a> Search<'a> {
                 (t[(1, 1)] - v * t[(2, 1)]) / w,
             );
             let det = jac.determinant();
-            let ratio = axis_ratio(&jac);
+            let ratio = view_axis_ratio(&jac, Point2::new(u, v), p.intrinsics.as_ref());
             let plausible = det > 0.0 && u.is_finite() && v.is_finite() && ratio >= p.min_axis_ratio;
             if !plausible {
                 return None;
@@ -345,7 +345,8 @@ impl<'a> Search<'a> {
         let linear = Matrix2::from_columns(&[h1 - h0, h2 - h0]) * table.basis_inverse[model];
         let det = linear.determinant();
         // A mirror (det < 0), degenerate or too oblique: no view of the front.
-        let plausible = det > 0.0 && axis_ratio(&linear) >= self.params.min_axis_ratio;
+        let ratio = view_axis_ratio(&linear, h0, self.params.intrinsics.as_ref());
+        let plausible = det > 0.0 && ratio >= self.params.min_axis_ratio;
         if !plausible {
             return;
         }
