@@ -89,6 +89,8 @@ struct Evaluated {
     errors_px: Vec<f64>,
     tolerance_px: f64,
     ms: f64,
+    /// Of `ms`: candidates, classification, hashing, refinement and verification.
+    stages_ms: [f64; 4],
     /// Per-hole reported standard deviation (px), template order, of a found outlet.
     sigma_px: Vec<f64>,
     /// Labelled holes with a candidate of their class within the tolerance: how
@@ -418,6 +420,7 @@ fn evaluate(detector: &Detector, image: &RgbImage, camera: &CameraModel, truth: 
         errors_px,
         tolerance_px,
         ms,
+        stages_ms: [report.times.candidates, report.times.classify, report.times.hash, report.times.refine],
         sigma_px,
         holes_classed,
         rejected: report.rejected,
