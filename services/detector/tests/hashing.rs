@@ -381,6 +381,33 @@ fn close_oblique_views_are_found_when_the_camera_is_known() {
     }
 }
 
+/// A 2x2 seen 57-59 degrees off-axis at its centre, 20-30 cm away: the far holes'
+/// rays are 60-63 degrees off the face's normal. The view is within the 60-degree
+/// limit, which holds at the outlet's centre; each hole gets `hole_axis_slack`.
+#[test]
+fn steep_views_within_the_limit_at_the_centre_are_found_though_far_holes_are_beyond_it() {
+    let camera = Intrinsics { fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5 };
+    let params = HashParams { intrinsics: Some(camera), ..HashParams::default() };
+    let every_hole = HashParams { hole_axis_slack: 0.0, ..params.clone() };
+    let t = template("2x2");
+    let table = table(&t);
+    let mut rng = SimRng::new(12);
+    let (mut centre, mut each) = (Tally::default(), Tally::default());
+    for _ in 0..60 {
+        let roll = Rotation3::from_axis_angle(&Vector3::z_axis(), rng.range(0.0, TAU));
+        let azimuth = rng.range(0.0, TAU);
+        let axis = nalgebra::Unit::new_normalize(Vector3::new(azimuth.cos(), azimuth.sin(), 0.0));
+        let tilt = Rotation3::from_axis_angle(&axis, rng.range(57.0f64, 59.0).to_radians());
+        let view = Perspective { rotation: tilt * roll, translation: Vector3::new(0.0, 0.0, rng.range(200.0, 300.0)) };
+        let c = all_holes(&t, &mut rng, &view);
+        centre.add(judge(&c.find_with(&table, &params), &c.truth));
+        each.add(judge(&c.find_with(&table, &every_hole), &c.truth));
+    }
+    println!("limit at the centre: {centre:?}; at every hole: {each:?}");
+    centre.check("2x2, 57-59 degrees at the centre, 20-30 cm", 90);
+    assert!(centre.exact > each.exact, "{centre:?} against {each:?}");
+}
+
 /// Local scale (px per mm) at a template point of a rendered scene.
 fn scene_scale(scene: &outlet_sim::Scene, hole_mm: Point2<f64>) -> f64 {
     let project = |x: f64, y: f64| {

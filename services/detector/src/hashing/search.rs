@@ -208,7 +208,8 @@ impl<'a> Search<'a> {
             );
             let det = jac.determinant();
             let ratio = view_axis_ratio(&jac, Point2::new(u, v), p.intrinsics.as_ref());
-            let plausible = det > 0.0 && u.is_finite() && v.is_finite() && ratio >= p.min_axis_ratio;
+            let plausible =
+                det > 0.0 && u.is_finite() && v.is_finite() && ratio >= p.min_axis_ratio - p.hole_axis_slack;
             if !plausible {
                 return None;
             }
@@ -218,6 +219,26 @@ impl<'a> Search<'a> {
             smax = smax.max(scale);
             out.pos[j] = Point2::new(u, v);
             out.size[j] = p.hole_size * scale;
+        }
+        // The view's angle is the one at the outlet's centre; each hole may be a
+        // little steeper (`HashParams::hole_axis_slack`).
+        {
+            let h = self.table.centroid;
+            let w = t[(2, 0)] * h.x + t[(2, 1)] * h.y + t[(2, 2)];
+            let u = (t[(0, 0)] * h.x + t[(0, 1)] * h.y + t[(0, 2)]) / w;
+            let v = (t[(1, 0)] * h.x + t[(1, 1)] * h.y + t[(1, 2)]) / w;
+            let jac = Matrix2::new(
+                (t[(0, 0)] - u * t[(2, 0)]) / w,
+                (t[(0, 1)] - u * t[(2, 1)]) / w,
+                (t[(1, 0)] - v * t[(2, 0)]) / w,
+                (t[(1, 1)] - v * t[(2, 1)]) / w,
+            );
+            let ratio = view_axis_ratio(&jac, Point2::new(u, v), p.intrinsics.as_ref());
+            // NaN fails it too.
+            let within = ratio >= p.min_axis_ratio;
+            if !within {
+                return None;
+            }
         }
         let bounded_perspective = smax <= p.max_scale_variation * smin;
         if !bounded_perspective {
