@@ -400,12 +400,14 @@ fn evaluate(detector: &Detector, image: &RgbImage, camera: &CameraModel, truth: 
     let t = std::time::Instant::now();
     let report = detector.detect(image, Some(camera));
     let ms = t.elapsed().as_secs_f64() * 1e3;
-    let sigma_px = report.detection.as_ref().map(|d| d.holes.iter().map(|h| h.sigma_px).collect()).unwrap_or_default();
-    let scores = report.detection.as_ref().map(|d| d.holes.iter().map(|h| h.score).collect()).unwrap_or_default();
-    let fitted = report.detection.as_ref().map(|d| d.holes.iter().map(|h| h.refined).collect()).unwrap_or_default();
-    let found: Option<Vec<Point2<f64>>> = report.detection.map(|d| d.holes.iter().map(|h| h.pixel).collect());
+    // Per found hole (template order); all empty when none was found.
+    let holes = report.detection.as_ref().map_or(&[][..], |d| &d.holes[..]);
+    let sigma_px = holes.iter().map(|h| h.sigma_px).collect();
+    let scores = holes.iter().map(|h| h.score).collect();
+    let fitted = holes.iter().map(|h| h.refined).collect();
+    let found_px = holes.iter().map(|h| [h.pixel.x, h.pixel.y]).collect();
+    let found: Option<Vec<Point2<f64>>> = report.detection.as_ref().map(|d| d.holes.iter().map(|h| h.pixel).collect());
     let (correct, errors_px, tolerance_px) = judge(found.as_deref().unwrap_or(&[]), truth);
-    let found_px = found.iter().flatten().map(|p| [p.x, p.y]).collect();
     let kinds = detector.template().geometry.holes.iter().map(|h| Class::from(h.kind));
     let holes_classed = truth
         .iter()

@@ -179,6 +179,26 @@ pub(super) struct Search<'a> {
     pub(super) tests: usize,
 }
 
+/// Where `t` puts template point `h` and d(pixel)/d(template) there; `None`
+/// where the point is not in front of the camera (NaN included).
+fn local_map(t: &Matrix3<f64>, h: Point2<f64>) -> Option<(Point2<f64>, Matrix2<f64>)> {
+    let w = t[(2, 0)] * h.x + t[(2, 1)] * h.y + t[(2, 2)];
+    // Written so that NaN fails it.
+    let in_front = w > 1e-12;
+    if !in_front {
+        return None;
+    }
+    let u = (t[(0, 0)] * h.x + t[(0, 1)] * h.y + t[(0, 2)]) / w;
+    let v = (t[(1, 0)] * h.x + t[(1, 1)] * h.y + t[(1, 2)]) / w;
+    let jac = Matrix2::new(
+        (t[(0, 0)] - u * t[(2, 0)]) / w,
+        (t[(0, 1)] - u * t[(2, 1)]) / w,
+        (t[(1, 0)] - v * t[(2, 0)]) / w,
+        (t[(1, 1)] - v * t[(2, 1)]) / w,
+    );
+    Some((Point2::new(u, v), jac))
+}
+
 impl<'a> Search<'a> {
     /// Transform's predicted positions and sizes, or `None` when the transform is
     /// implausible: a hole behind the camera, a mirror, degenerate, too oblique,
@@ -192,24 +212,11 @@ impl<'a> Search<'a> {
         };
         let (mut smin, mut smax) = (f64::INFINITY, 0.0f64);
         for (j, h) in self.table.points.iter().enumerate() {
-            let w = t[(2, 0)] * h.x + t[(2, 1)] * h.y + t[(2, 2)];
-            // Comparisons are written so that NaN fails them.
-            let in_front = w > 1e-12;
-            if !in_front {
-                return None;
-            }
-            let u = (t[(0, 0)] * h.x + t[(0, 1)] * h.y + t[(0, 2)]) / w;
-            let v = (t[(1, 0)] * h.x + t[(1, 1)] * h.y + t[(1, 2)]) / w;
-            let jac = Matrix2::new(
-                (t[(0, 0)] - u * t[(2, 0)]) / w,
-                (t[(0, 1)] - u * t[(2, 1)]) / w,
-                (t[(1, 0)] - v * t[(2, 0)]) / w,
-                (t[(1, 1)] - v * t[(2, 1)]) / w,
-            );
+            let (at, jac) = local_map(t, *h)?;
             let det = jac.determinant();
-            let ratio = view_axis_ratio(&jac, Point2::new(u, v), p.intrinsics.as_ref());
+            let ratio = view_axis_ratio(&jac, at, p.intrinsics.as_ref());
             let plausible =
-                det > 0.0 && u.is_finite() && v.is_finite() && ratio >= p.min_axis_ratio - p.hole_axis_slack;
+                det > 0.0 && at.x.is_finite() && at.y.is_finite() && ratio >= p.min_axis_ratio - p.hole_axis_slack;
             if !plausible {
                 return None;
             }
@@ -217,28 +224,16 @@ impl<'a> Search<'a> {
             let scale = det.sqrt();
             smin = smin.min(scale);
             smax = smax.max(scale);
-            out.pos[j] = Point2::new(u, v);
+            out.pos[j] = at;
             out.size[j] = p.hole_size * scale;
         }
         // The view's angle is the one at the outlet's centre; each hole may be a
         // little steeper (`HashParams::hole_axis_slack`).
-        {
-            let h = self.table.centroid;
-            let w = t[(2, 0)] * h.x + t[(2, 1)] * h.y + t[(2, 2)];
-            let u = (t[(0, 0)] * h.x + t[(0, 1)] * h.y + t[(0, 2)]) / w;
-            let v = (t[(1, 0)] * h.x + t[(1, 1)] * h.y + t[(1, 2)]) / w;
-            let jac = Matrix2::new(
-                (t[(0, 0)] - u * t[(2, 0)]) / w,
-                (t[(0, 1)] - u * t[(2, 1)]) / w,
-                (t[(1, 0)] - v * t[(2, 0)]) / w,
-                (t[(1, 1)] - v * t[(2, 1)]) / w,
-            );
-            let ratio = view_axis_ratio(&jac, Point2::new(u, v), p.intrinsics.as_ref());
-            // NaN fails it too.
-            let within = ratio >= p.min_axis_ratio;
-            if !within {
-                return None;
-            }
+        let (centre, jac) = local_map(t, self.table.centroid)?;
+        // NaN fails it too.
+        let within = view_axis_ratio(&jac, centre, p.intrinsics.as_ref()) >= p.min_axis_ratio;
+        if !within {
+            return None;
         }
         let bounded_perspective = smax <= p.max_scale_variation * smin;
         if !bounded_perspective {

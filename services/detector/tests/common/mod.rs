@@ -2,11 +2,12 @@
 //! the 2x1 template trained as the built-in one is.
 #![allow(dead_code)] // each test file uses its own part
 
-use nalgebra::{Point2, Vector3};
+use nalgebra::{Matrix2, Point2, Point3, Vector3};
 use outlet_detector::candidates::{CandidateParams, find_candidates};
 use outlet_detector::descriptor::DescriptorParams;
 use outlet_detector::detect::{Detection, Detector, DetectorParams};
 use outlet_detector::grey_of;
+use outlet_detector::refine::HoleShape;
 use outlet_detector::template::{Template, TrainingImage, TrainingOptions, train_template_with};
 use outlet_protocol::{CameraModel, OutletGeometry};
 use outlet_sim::scenario::pose_looking;
@@ -100,4 +101,38 @@ pub fn worst_error(d: &Detection, truth: &[Point2<f64>]) -> f64 {
 
 pub fn truth_pixels(frame: &outlet_sim::RenderedFrame) -> Vec<Point2<f64>> {
     frame.truth.holes.iter().map(|h| Point2::new(h.pixel[0], h.pixel[1])).collect()
+}
+
+/// The outlet-plane mm to image px Jacobian at a hole, from the true pose.
+pub fn jacobian(scene: &outlet_sim::Scene, hole_mm: [f64; 2]) -> Matrix2<f64> {
+    let project = |x: f64, y: f64| {
+        scene.camera.project(&(scene.pose * Point3::new(x / 1000.0, y / 1000.0, 0.0))).expect("in front")
+    };
+    let c = project(hole_mm[0], hole_mm[1]);
+    let dx = project(hole_mm[0] + 0.5, hole_mm[1]) - c;
+    let dy = project(hole_mm[0], hole_mm[1] + 0.5) - c;
+    Matrix2::new(dx.x, dy.x, dx.y, dy.y) * 2.0
+}
+
+/// Every hole of views `0..count` of `scenario` (seed `seed`, the default VGA
+/// camera): the grey frame, the hole's true pixel, its mm-to-px Jacobian and
+/// its outline, in template order.
+pub fn each_rendered_hole(
+    scenario: &str,
+    seed: u64,
+    count: u64,
+    mut visit: impl FnMut(&image::GrayImage, Point2<f64>, &Matrix2<f64>, HoleShape),
+) {
+    let camera = CameraModel::default_vga();
+    for index in 0..count {
+        let scene = sample_scene(scenario, seed, index, &camera).expect("scene");
+        let frame = render_frame(&scene, "x");
+        let grey = grey_of(&frame.frame.image);
+        let geometry = scene.geometry().expect("outlet");
+        let outlines = HoleShape::us_outlines(&geometry);
+        for ((hole, truth), outline) in geometry.holes.iter().zip(&frame.truth.holes).zip(outlines) {
+            let j = jacobian(&scene, hole.position_mm);
+            visit(&grey, Point2::new(truth.pixel[0], truth.pixel[1]), &j, outline);
+        }
+    }
 }
