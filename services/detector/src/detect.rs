@@ -10,6 +10,7 @@ use crate::verify::{VerifyParams, hole_score, identity_gain};
 use crate::{Candidate, Class, grey_of};
 use image::{GrayImage, RgbImage};
 use nalgebra::{Matrix2, Matrix3, Point2, Vector2};
+use outlet_protocol::geometry::SLOT_PITCH_MM;
 use outlet_protocol::{CameraModel, HoleKind};
 use std::time::Instant;
 
@@ -69,6 +70,13 @@ pub struct DetectorParams {
     /// the half level costs a quarter (the outlet found is refined and verified
     /// at full resolution all the same). 0 = never.
     pub coarse_first_px: u32,
+    /// After a coarse-first look found nothing, full resolution is looked at
+    /// only if, with a camera, an outlet at the farthest working distance
+    /// ([`FARTHEST_OUTLET_MM`]) could show a slot pitch under this many pixels
+    /// at half resolution: holes that small are what the half level can miss
+    /// and full resolution can see. Without a camera full resolution is always
+    /// looked at. 0 = always.
+    pub full_after_coarse_below_pitch_px: f64,
     /// A hole whose centre could not be fitted is taken from the homography of
     /// the fitted holes only when at least this many were fitted: four fix a
     /// homography exactly and check nothing. The predicted hole's outline must
@@ -101,8 +109,26 @@ impl Default for DetectorParams {
             ground_decides: 0.2,
             pyramid_min_px: 640,
             coarse_first_px: 1280,
+            full_after_coarse_below_pitch_px: 12.0,
             min_fitted_for_prediction: 5,
             predicted_sigma_mm: 0.5,
+        }
+    }
+}
+
+impl DetectorParams {
+    /// Whether full resolution is worth a look after the half level of a
+    /// coarse-first image found nothing ([`Self::full_after_coarse_below_pitch_px`]).
+    pub fn full_after_coarse(&self, camera: Option<&CameraModel>) -> bool {
+        let below = self.full_after_coarse_below_pitch_px;
+        match camera {
+            Some(c) if below > 0.0 => {
+                let f = (c.fx * c.fy).sqrt();
+                let least_half_pitch = SLOT_PITCH_MM * f / FARTHEST_OUTLET_MM / 2.0;
+                // A broken camera (NaN) looks again, as one without a camera.
+                least_half_pitch.is_nan() || least_half_pitch < below
+            }
+            _ => true,
         }
     }
 }
@@ -178,6 +204,14 @@ pub struct DetectReport {
 /// not (the reason a found outlet was refused, if any).
 type LevelOutcome = Result<Detection, Option<String>>;
 
+/// A reading hashing found and verification refused: the template to
+/// undistorted image homography and each hole's candidate centre (as captured).
+struct Hypothesis {
+    transform: Matrix3<f64>,
+    guesses: Vec<Option<Point2<f64>>>,
+    score: usize,
+}
+
 /// A template ready to detect with.
 #[derive(Debug, Clone)]
 pub struct Detector {
@@ -186,6 +220,11 @@ pub struct Detector {
     outlines: Vec<HoleShape>,
     params: DetectorParams,
 }
+
+/// The farthest outlet the detector looks for when it knows the camera (mm):
+/// the hashing's smallest scale, and what the half level of a large image must
+/// resolve. The robot parks 20-50 cm from the wall.
+pub const FARTHEST_OUTLET_MM: f64 = 700.0;
 
 fn ms_since(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
@@ -274,12 +313,28 @@ impl Detector {
     /// [`Self::detect_grey`], with the size-dependent choices made for an image
     /// whose larger side is `largest` (this one, or the frame it was cut from).
     fn detect_sized(&self, grey: &GrayImage, camera: Option<&CameraModel>, largest: u32) -> DetectReport {
+        self.detect_level(grey, camera, largest, &mut Vec::new())
+    }
+
+    /// [`Self::detect_sized`], also giving the hypotheses that hashing found in
+    /// this image and its verification here refused (`refused`).
+    fn detect_level(
+        &self,
+        grey: &GrayImage,
+        camera: Option<&CameraModel>,
+        largest: u32,
+        refused: &mut Vec<Hypothesis>,
+    ) -> DetectReport {
         let mut times = StageTimes::default();
         let coarse_first = self.params.coarse_first_px > 0 && largest >= self.params.coarse_first_px;
-        if coarse_first
-            && let Some((Ok(found), candidates)) = self.at_half_resolution(grey, camera, largest, &mut times)
-        {
-            return DetectReport { detection: Some(found), candidates, times, rejected: None };
+        if coarse_first && let Some((half, candidates)) = self.at_half_resolution(grey, camera, largest, &mut times) {
+            match half {
+                Ok(found) => return DetectReport { detection: Some(found), candidates, times, rejected: None },
+                Err(rejected) if !self.params.full_after_coarse(camera) => {
+                    return DetectReport { detection: None, candidates, times, rejected };
+                }
+                Err(_) => {}
+            }
         }
         let t = Instant::now();
         let _span = tracing::debug_span!("detect", width = grey.width(), height = grey.height()).entered();
@@ -309,11 +364,11 @@ impl Detector {
         hash.image_size = Some([grey.width() as f64, grey.height() as f64]);
         if let Some(c) = camera {
             let f = (c.fx * c.fy).sqrt();
-            hash.scale_range = Some([f / 700.0 * hash.min_axis_ratio.clamp(0.0, 1.0).sqrt(), f / 50.0]);
+            hash.scale_range = Some([f / FARTHEST_OUTLET_MM * hash.min_axis_ratio.clamp(0.0, 1.0).sqrt(), f / 50.0]);
             hash.intrinsics = Some(Intrinsics { fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy });
         }
         let lens = Lens { camera };
-        let (mut detection, mut rejected) = self.search(grey, &lens, &classified, &hash, &mut times);
+        let (mut detection, mut rejected) = self.search(grey, &lens, &classified, &hash, &mut times, refused);
         if detection.is_none() && self.params.second_look_margin > 0.0 {
             // A second look: candidates the descriptor put only narrowly in the
             // background (shadowed or washed-out holes) count as their nearer hole
@@ -336,7 +391,7 @@ impl Detector {
             let relaxed: Vec<(Candidate, Class)> =
                 candidates.iter().zip(&classifications).map(|(c, k)| (*c, relax(k))).collect();
             if relaxed.iter().zip(&classified).any(|(a, b)| a.1 != b.1) {
-                let (second, why) = self.search(grey, &lens, &relaxed, &hash, &mut times);
+                let (second, why) = self.search(grey, &lens, &relaxed, &hash, &mut times, refused);
                 detection = second;
                 rejected = why.or(rejected);
             }
@@ -357,7 +412,7 @@ impl Detector {
                     .collect();
                 times.classify += ms_since(t);
                 if third.iter().zip(&relaxed).any(|(a, b)| a.1 != b.1) {
-                    let (found, why) = self.search(grey, &lens, &third, &hash, &mut times);
+                    let (found, why) = self.search(grey, &lens, &third, &hash, &mut times, refused);
                     detection = found;
                     rejected = why.or(rejected);
                 }
@@ -377,7 +432,7 @@ impl Detector {
                     }
                 }
                 if swapped.len() > relaxed.len() {
-                    let (found, why) = self.search(grey, &lens, &swapped, &hash, &mut times);
+                    let (found, why) = self.search(grey, &lens, &swapped, &hash, &mut times, refused);
                     detection = found;
                     rejected = why.or(rejected);
                 }
@@ -416,7 +471,8 @@ impl Detector {
             Some(c) => Some(half_camera(c, half.width(), half.height())?),
             None => None,
         };
-        let report = self.detect_sized(&half, half_camera.as_ref(), largest / 2);
+        let mut refused = Vec::new();
+        let report = self.detect_level(&half, half_camera.as_ref(), largest / 2, &mut refused);
         *times += report.times;
         // The level's candidates in this image's pixels.
         let candidates = report
@@ -455,7 +511,31 @@ impl Detector {
                     Some(format!("found at half resolution, refused at full resolution: {why}"))
                 })
             }
-            None => Err(report.rejected),
+            // What hashing found here but the half level's verification refused
+            // (most often a faint hole: a real ground hole of a few pixels at
+            // half size) is verified again at full resolution, where the
+            // hole's outline has four times the pixels; the full level's
+            // verification decides, as for any outlet.
+            None => {
+                let t = Instant::now();
+                let up = Matrix3::new(2.0, 0.0, 0.5, 0.0, 2.0, 0.5, 0.0, 0.0, 1.0);
+                let lens = Lens { camera };
+                let mut outcome = Err(report.rejected);
+                for h in &refused {
+                    let guesses: Vec<Option<Point2<f64>>> =
+                        h.guesses.iter().map(|g| g.map(|c| Point2::new(2.0 * c.x + 0.5, 2.0 * c.y + 0.5))).collect();
+                    match self.refine_either(grey, &lens, &(up * h.transform), &guesses, h.score) {
+                        Ok(found) => {
+                            tracing::debug!("refused at half resolution, verified at full resolution");
+                            outcome = Ok(found);
+                            break;
+                        }
+                        Err(why) => tracing::debug!(reason = %why, "refused at half and at full resolution"),
+                    }
+                }
+                times.refine += ms_since(t);
+                outcome
+            }
         };
         Some((outcome, candidates))
     }
@@ -469,6 +549,7 @@ impl Detector {
         classified: &[(Candidate, Class)],
         hash: &HashParams,
         times: &mut StageTimes,
+        refused: &mut Vec<Hypothesis>,
     ) -> (Option<Detection>, Option<String>) {
         let t = Instant::now();
         let holes: Vec<&(Candidate, Class)> =
@@ -482,16 +563,10 @@ impl Detector {
         let t = Instant::now();
         let guesses: Vec<Option<Point2<f64>>> =
             m.assignment.iter().map(|a| a.and_then(|k| holes.get(k).map(|(c, _)| c.centre))).collect();
-        let result = self.refine(grey, lens, &m.transform, &guesses, m.score).or_else(|why| {
-            // Hashing leaves a duplex's two readings of the same power holes
-            // to the image: the half-turned one, if its ground holes say so.
-            let Some((c, image)) = self.table.half_turn() else { return Err(why) };
-            let turn = Matrix3::new(-1.0, 0.0, 2.0 * c.x, 0.0, -1.0, 2.0 * c.y, 0.0, 0.0, 1.0);
-            let turned: Vec<Option<Point2<f64>>> =
-                image.iter().map(|k| k.and_then(|k| guesses.get(k).copied().flatten())).collect();
-            self.refine(grey, lens, &(m.transform * turn), &turned, m.score)
-                .map_err(|turned_why| format!("{why}; half-turned: {turned_why}"))
-        });
+        let result = self.refine_either(grey, lens, &m.transform, &guesses, m.score);
+        if result.is_err() {
+            refused.push(Hypothesis { transform: m.transform, guesses, score: m.score });
+        }
         times.refine += ms_since(t);
         match result {
             Ok(d) => (Some(d), None),
@@ -500,6 +575,27 @@ impl Detector {
                 (None, Some(why))
             }
         }
+    }
+
+    /// [`Self::refine`] of the hashing's reading, or else of its half turn.
+    fn refine_either(
+        &self,
+        grey: &GrayImage,
+        lens: &Lens,
+        transform: &Matrix3<f64>,
+        guesses: &[Option<Point2<f64>>],
+        score: usize,
+    ) -> Result<Detection, String> {
+        self.refine(grey, lens, transform, guesses, score).or_else(|why| {
+            // Hashing leaves a duplex's two readings of the same power holes
+            // to the image: the half-turned one, if its ground holes say so.
+            let Some((c, image)) = self.table.half_turn() else { return Err(why) };
+            let turn = Matrix3::new(-1.0, 0.0, 2.0 * c.x, 0.0, -1.0, 2.0 * c.y, 0.0, 0.0, 1.0);
+            let turned: Vec<Option<Point2<f64>>> =
+                image.iter().map(|k| k.and_then(|k| guesses.get(k).copied().flatten())).collect();
+            self.refine(grey, lens, &(transform * turn), &turned, score)
+                .map_err(|turned_why| format!("{why}; half-turned: {turned_why}"))
+        })
     }
 
     /// Refines every hole from the hashing's homography, then verifies the
@@ -920,7 +1016,7 @@ impl Lens<'_> {
 
 /// The image at half resolution: each pixel the mean of a 2x2 block. None when
 /// the image is too small to halve.
-pub(crate) fn half_resolution(grey: &GrayImage) -> Option<GrayImage> {
+pub fn half_resolution(grey: &GrayImage) -> Option<GrayImage> {
     let (w, h) = (grey.width() / 2, grey.height() / 2);
     if w < 16 || h < 16 {
         return None;
@@ -992,6 +1088,19 @@ mod tests {
             assert_eq!(p.0[0], ((sum + 2) / 4) as u8, "at ({x}, {y})");
         }
         assert!(half_resolution(&GrayImage::new(31, 40)).is_none(), "under 16 px a side");
+    }
+
+    #[test]
+    fn full_resolution_follows_a_failed_half_level_only_where_a_far_outlet_could_be_too_small_there() {
+        let params = DetectorParams::default();
+        let camera = |f: f64| CameraModel::new(1600, 1200, [f, f, 800.0, 600.0], [0.0; 5]).expect("camera");
+        // The Willow camera (f 1475 px): 13.4 px of slot pitch at 70 cm and half resolution.
+        assert!(!params.full_after_coarse(Some(&camera(1475.0))));
+        // A 1280x960 camera (f 1050 px): 9.5 px there, under the 10 px the half level needs.
+        assert!(params.full_after_coarse(Some(&camera(1050.0))));
+        assert!(params.full_after_coarse(None), "without a camera the outlet's size is unknown");
+        let always = DetectorParams { full_after_coarse_below_pitch_px: 0.0, ..DetectorParams::default() };
+        assert!(always.full_after_coarse(Some(&camera(1475.0))));
     }
 
     /// A 2x1's six holes (template mm) seen at 3 px per mm, shifted to (300, 200).

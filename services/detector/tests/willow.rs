@@ -199,3 +199,63 @@ fn a_ground_down_outlet_is_not_taken_for_a_half_turned_ground_up_one() {
     println!("of 24: {right} right, {turned_unchecked} half-turned without the ground check");
     assert!(right >= 3, "only {right} of 24 found the right way up");
 }
+
+/// A turned view of V004 made by `outlet eval --photos` (default seed, view 16:
+/// 1567x1070, 58.9 degrees off-axis, slots 24 px), cropped to x 1080..1460,
+/// y 350..680 around the outlet; its holes in template order, in the crop.
+const V004_VIEW16_HOLES: [[f64; 2]; 12] = [
+    [106.84, 104.31],
+    [140.45, 112.3],
+    [124.47, 125.14],
+    [109.34, 164.54],
+    [144.46, 173.42],
+    [127.4, 187.85],
+    [230.0, 141.43],
+    [263.61, 150.29],
+    [248.67, 164.71],
+    [235.42, 204.43],
+    [271.11, 214.8],
+    [255.38, 229.55],
+];
+
+/// Seen steeply, the faint ground hole of V004's first receptacle is a few
+/// pixels wide at half resolution: hashing finds the outlet there and the half
+/// level's verification refuses it. The hypothesis is then verified at full
+/// resolution instead of searching the full image all over again.
+#[test]
+fn an_outlet_the_half_level_refuses_is_verified_at_full_resolution() {
+    let (template, _) = willow_template();
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/willow-2x2/V004_view16_crop.png");
+    let grey = grey_of(&image::open(path).expect("fixture").to_rgb8());
+    let (origin, frame) = ([1080, 350], [1567, 1070]);
+    let camera = CameraModel::new(1567, 1070, [1534.7095, 1534.7095, 783.0, 534.5], [0.0; 5]).expect("camera");
+    // The half level on its own: found by hashing, refused by verification.
+    let half = outlet_detector::detect::half_resolution(&grey).expect("halved");
+    let half_camera = CameraModel {
+        fx: camera.fx / 2.0,
+        fy: camera.fy / 2.0,
+        cx: (camera.cx - 0.5) / 2.0,
+        cy: (camera.cy - 0.5) / 2.0,
+        ..camera
+    };
+    let detector = Detector::new(template.clone(), DetectorParams::default());
+    let at_half =
+        detector.detect_crop(&half, [origin[0] / 2, origin[1] / 2], [frame[0] / 2, frame[1] / 2], Some(&half_camera));
+    assert!(
+        at_half.detection.is_none(),
+        "the half level verified the outlet itself: the test no longer covers the path"
+    );
+    assert!(at_half.rejected.is_some(), "hashing found nothing at half resolution");
+    // Full resolution never searched after the half level: the outlet comes
+    // from the half level's hypothesis, verified at full resolution.
+    let half_only = DetectorParams { full_after_coarse_below_pitch_px: f64::MIN_POSITIVE, ..DetectorParams::default() };
+    assert!(!half_only.full_after_coarse(Some(&camera)));
+    let report = Detector::new(template, half_only).detect_crop(&grey, origin, frame, Some(&camera));
+    let found = report.detection.unwrap_or_else(|| panic!("not found: {:?}", report.rejected));
+    for (k, (hole, truth)) in found.holes.iter().zip(&V004_VIEW16_HOLES).enumerate() {
+        // Pixels of the whole frame, labels of the crop.
+        let e = (hole.pixel - Point2::new(truth[0] + origin[0] as f64, truth[1] + origin[1] as f64)).norm();
+        // 0.2 of the slot pitch (35 px) is `outlet eval --photos`'s tolerance, capped at 5 px.
+        assert!(e < 5.0, "hole {k}: {e:.2} px from the label");
+    }
+}
