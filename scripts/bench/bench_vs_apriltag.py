@@ -127,7 +127,7 @@ def time_outlet(outlet, reps, images):
         sequence = [img for img in images for _ in range(TRACK_FRAMES)]
         _, _, records = run_outlet(outlet, sequence, track=True)
         for k, rec in enumerate(records):
-            if rec.get("searched") == "window" and rec.get("found"):
+            if rec.get("searched") in ("window", "followed") and rec.get("found"):
                 tracked[k // TRACK_FRAMES].append(rec["timing_ms"]["detect"])
                 windows += r == 0
     json.dump(

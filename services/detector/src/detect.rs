@@ -310,6 +310,64 @@ impl Detector {
         report
     }
 
+    /// Verifies the outlet where `homography` (template mm to the frame's
+    /// undistorted pixels) puts it, each hole's fit starting from `guesses`
+    /// (the frame's pixels as captured, template order): the refinement and
+    /// every check of a detection ([`Self::refine`]: each hole seen on one
+    /// plane, not mirrored, the ground holes and the outlines for its reading),
+    /// without candidates or hashing. Tracking ([`crate::track`]) gives the last
+    /// frame's outlet. `crop` is the part of a `frame_size` frame at `origin`,
+    /// as in [`Self::detect_crop`]; pixels and homography come back in the
+    /// frame's coordinates, `score` is carried into the detection. A hole found
+    /// farther than `max_move_px` from its guess refuses the outlet: the
+    /// outlet moved more than a follow should take on trust.
+    #[allow(clippy::too_many_arguments)] // a crop's place and the outlet to verify there
+    pub fn verify_at(
+        &self,
+        crop: &GrayImage,
+        origin: [u32; 2],
+        camera: Option<&CameraModel>,
+        homography: &Matrix3<f64>,
+        guesses: &[Point2<f64>],
+        score: usize,
+        max_move_px: f64,
+    ) -> DetectReport {
+        let t = Instant::now();
+        let (dx, dy) = (origin[0] as f64, origin[1] as f64);
+        let (cw, ch) = crop.dimensions();
+        let camera = camera.map(|c| CameraModel { width: cw, height: ch, cx: c.cx - dx, cy: c.cy - dy, ..*c });
+        let to_crop = Matrix3::new(1.0, 0.0, -dx, 0.0, 1.0, -dy, 0.0, 0.0, 1.0);
+        let shifted: Vec<Option<Point2<f64>>> = guesses.iter().map(|g| Some(g - Vector2::new(dx, dy))).collect();
+        let lens = Lens { camera: camera.as_ref() };
+        let result = if guesses.len() != self.template.geometry.holes.len() {
+            Err(format!(
+                "{} hole guesses for a template of {} holes",
+                guesses.len(),
+                self.template.geometry.holes.len()
+            ))
+        } else {
+            self.refine(crop, &lens, &(to_crop * homography), &shifted, score).and_then(|mut d| {
+                for (hole, guess) in d.holes.iter_mut().zip(guesses) {
+                    hole.pixel += Vector2::new(dx, dy);
+                    let moved = (hole.pixel - guess).norm();
+                    if moved.is_nan() || moved > max_move_px {
+                        return Err(format!("a hole moved {moved:.1} px, more than {max_move_px:.1} px"));
+                    }
+                }
+                d.homography = Matrix3::new(1.0, 0.0, dx, 0.0, 1.0, dy, 0.0, 0.0, 1.0) * d.homography;
+                Ok(d)
+            })
+        };
+        let times = StageTimes { refine: ms_since(t), ..StageTimes::default() };
+        match result {
+            Ok(d) => DetectReport { detection: Some(d), candidates: Vec::new(), times, rejected: None },
+            Err(why) => {
+                tracing::debug!(reason = %why, "the followed outlet is not verified");
+                DetectReport { detection: None, candidates: Vec::new(), times, rejected: Some(why) }
+            }
+        }
+    }
+
     /// [`Self::detect_grey`], with the size-dependent choices made for an image
     /// whose larger side is `largest` (this one, or the frame it was cut from).
     fn detect_sized(&self, grey: &GrayImage, camera: Option<&CameraModel>, largest: u32) -> DetectReport {

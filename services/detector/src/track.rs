@@ -4,12 +4,16 @@
 //! is too old, and every [`TrackParams::full_frame_every`] frames regardless. A
 //! window's outlet goes through exactly the verification of a full frame's
 //! ([`Detector::detect_window`]), so tracking can miss but cannot add a wrong
-//! outlet that a full-frame search would not have given.
+//! outlet that a full-frame search would not have given. Before the window is
+//! searched, the last outlet is verified where it was ([`Detector::verify_at`]:
+//! its holes refined from their last places and every check of a detection),
+//! which costs the refinement alone; the window is searched when that fails.
 
 use crate::detect::{DetectReport, Detector, StageTimes};
 use image::GrayImage;
-use nalgebra::Point2;
+use nalgebra::{Matrix3, Point2};
 use outlet_protocol::CameraModel;
+use outlet_protocol::math::apply_homography;
 
 /// When and where to track.
 #[derive(Debug, Clone, PartialEq)]
@@ -31,11 +35,25 @@ pub struct TrackParams {
     /// An outlet last seen longer ago than this (s) is looked for in the whole
     /// frame.
     pub max_age_s: f64,
+    /// Verify the last outlet where it was before searching the window.
+    pub follow: bool,
+    /// A followed hole may move at most this fraction of the last outlet's
+    /// closest hole spacing (pixels): a hole never takes its neighbour's place,
+    /// and an outlet moving faster is searched for in the window instead.
+    pub max_follow_move: f64,
 }
 
 impl Default for TrackParams {
     fn default() -> Self {
-        Self { full_frame_every: 30, margin: 0.3, margin_per_s: 4.0, min_margin_px: 12.0, max_age_s: 0.5 }
+        Self {
+            full_frame_every: 30,
+            margin: 0.3,
+            margin_per_s: 4.0,
+            min_margin_px: 12.0,
+            max_age_s: 0.5,
+            follow: true,
+            max_follow_move: 0.5,
+        }
     }
 }
 
@@ -44,6 +62,9 @@ impl Default for TrackParams {
 pub enum Searched {
     /// Only the window `[x, y, width, height]` around the last outlet.
     Window([u32; 4]),
+    /// The last outlet verified where it was, within that window, without a
+    /// search ([`Detector::verify_at`]).
+    Followed([u32; 4]),
     /// The whole frame (after a window that found nothing, if `after_window`).
     FullFrame { after_window: bool },
 }
@@ -61,18 +82,25 @@ pub struct Tracker {
     params: TrackParams,
     /// The last verified outlet's hole pixels and its frame's time (s).
     last: Option<(Vec<Point2<f64>>, f64)>,
+    /// Its homography (template mm to undistorted pixels) and hashing score.
+    last_outlet: Option<(Matrix3<f64>, usize)>,
+    /// The homography and frame time (s) of the outlet verified the frame
+    /// before the last one, when that frame had one: the motion to predict.
+    before_last: Option<(Matrix3<f64>, f64)>,
     /// Frames searched by window only since the last full-frame search.
     windows_since_full: u32,
 }
 
 impl Tracker {
     pub fn new(params: TrackParams) -> Self {
-        Self { params, last: None, windows_since_full: 0 }
+        Self { params, last: None, last_outlet: None, before_last: None, windows_since_full: 0 }
     }
 
     /// Forgets the last outlet: the next frame is searched whole.
     pub fn reset(&mut self) {
         self.last = None;
+        self.last_outlet = None;
+        self.before_last = None;
         self.windows_since_full = 0;
     }
 
@@ -109,7 +137,35 @@ impl Tracker {
         camera: Option<&CameraModel>,
         time_s: f64,
     ) -> Result<Tracked, StageTimes> {
-        let report = detector.detect_crop(crop, [window[0], window[1]], frame_size, camera);
+        let mut spent = StageTimes::default();
+        if let (true, Some((holes, then)), Some((homography, score))) =
+            (self.params.follow, self.last.as_ref(), self.last_outlet.as_ref())
+        {
+            let max_move = self.params.max_follow_move * closest_spacing(holes);
+            // The holes moved on as they did between the last two frames: an
+            // approach at 10 cm/s moves a hole of an HD frame by several pixels
+            // a frame, more than a fit started at its last place follows.
+            let predicted = self.predicted(homography, *then, time_s);
+            let model = detector.template().geometry.holes.iter().map(|h| h.position());
+            let guesses: Vec<Point2<f64>> = holes
+                .iter()
+                .zip(model)
+                .map(|(p, t)| match (apply_homography(&predicted, &t), apply_homography(homography, &t)) {
+                    (Some(a), Some(b)) => p + (a - b),
+                    _ => *p,
+                })
+                .collect();
+            let report =
+                detector.verify_at(crop, [window[0], window[1]], camera, &predicted, &guesses, *score, max_move);
+            if report.detection.is_some() {
+                self.windows_since_full += 1;
+                self.remember(&report, time_s);
+                return Ok(Tracked { report, searched: Searched::Followed(window) });
+            }
+            spent = report.times;
+        }
+        let mut report = detector.detect_crop(crop, [window[0], window[1]], frame_size, camera);
+        report.times += spent;
         if report.detection.is_none() {
             return Err(report.times);
         }
@@ -137,8 +193,28 @@ impl Tracker {
         Tracked { report, searched: Searched::FullFrame { after_window: after_window.is_some() } }
     }
 
+    /// The last outlet's homography moved on to `time_s` by the motion between
+    /// the last two frames (constant velocity), or as it was when there is no
+    /// such motion or the frames are not evenly spaced.
+    fn predicted(&self, last: &Matrix3<f64>, then: f64, time_s: f64) -> Matrix3<f64> {
+        let Some((before, earlier)) = self.before_last.as_ref() else { return *last };
+        let (gap, step) = (time_s - then, then - earlier);
+        if !(gap > 0.0 && step > 0.0 && (gap / step - 1.0).abs() < 0.25) {
+            return *last;
+        }
+        match before.try_inverse().map(|inv| last * inv * last) {
+            Some(h) if h[(2, 2)].abs() > 1e-12 && h.iter().all(|v| v.is_finite()) => h / h[(2, 2)],
+            _ => *last,
+        }
+    }
+
     fn remember(&mut self, report: &DetectReport, time_s: f64) {
+        self.before_last = match (&self.last, &self.last_outlet, &report.detection) {
+            (Some((_, then)), Some((h, _)), Some(_)) => Some((*h, *then)),
+            _ => None,
+        };
         self.last = report.detection.as_ref().map(|d| (d.holes.iter().map(|h| h.pixel).collect(), time_s));
+        self.last_outlet = report.detection.as_ref().map(|d| (d.homography, d.score));
     }
 
     /// The window (`[x, y, width, height]`) in which a frame of `size` captured
@@ -157,6 +233,8 @@ impl Tracker {
         let age = time_s - then;
         if !(age.is_finite() && age >= 0.0 && age <= p.max_age_s) {
             self.last = None;
+            self.last_outlet = None;
+            self.before_last = None;
             return None;
         }
         let (mut x0, mut y0, mut x1, mut y1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
@@ -178,6 +256,17 @@ impl Tracker {
         }
         Some([left as u32, top as u32, w as u32, h as u32])
     }
+}
+
+/// The smallest distance between two of the holes (pixels); 0 for fewer than two.
+fn closest_spacing(holes: &[Point2<f64>]) -> f64 {
+    let mut closest = f64::INFINITY;
+    for (i, a) in holes.iter().enumerate() {
+        for b in &holes[i + 1..] {
+            closest = closest.min((a - b).norm());
+        }
+    }
+    if closest.is_finite() { closest } else { 0.0 }
 }
 
 #[cfg(test)]

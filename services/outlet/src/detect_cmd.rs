@@ -239,6 +239,7 @@ fn run_one(
             let tracked = tracker.detect_grey(detector, &grey, camera.as_ref(), time_s);
             let searched = match tracked.searched {
                 Searched::Window(_) => "window",
+                Searched::Followed(_) => "followed",
                 Searched::FullFrame { after_window: false } => "full_frame",
                 Searched::FullFrame { after_window: true } => "full_frame_after_window",
             };
