@@ -69,15 +69,19 @@ fn bench_tracking(c: &mut Criterion) {
         // recedes), each tracked from the one before, with the whole-frame
         // search every 30 frames that tracking keeps doing.
         let order: Vec<usize> = (0..frames.len()).chain((0..frames.len()).rev()).collect();
-        let mut tracker = Tracker::new(TrackParams::default());
-        let (mut i, mut time) = (0, 0.0);
-        group.bench_function("tracking", |b| {
-            b.iter(|| {
-                i = (i + 1) % order.len();
-                time += 1.0 / 30.0;
-                black_box(tracker.detect_grey(&detector, &frames[order[i]], Some(&camera), time))
-            })
-        });
+        // As shipped (a window around the last outlet), and following the last
+        // outlet first (`TrackParams::follow`).
+        for (name, follow) in [("tracking", false), ("tracking_followed", true)] {
+            let mut tracker = Tracker::new(TrackParams { follow, ..TrackParams::default() });
+            let (mut i, mut time) = (0, 0.0);
+            group.bench_function(name, |b| {
+                b.iter(|| {
+                    i = (i + 1) % order.len();
+                    time += 1.0 / 30.0;
+                    black_box(tracker.detect_grey(&detector, &frames[order[i]], Some(&camera), time))
+                })
+            });
+        }
         group.finish();
     }
 }

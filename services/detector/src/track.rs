@@ -4,10 +4,11 @@
 //! is too old, and every [`TrackParams::full_frame_every`] frames regardless. A
 //! window's outlet goes through exactly the verification of a full frame's
 //! ([`Detector::detect_window`]), so tracking can miss but cannot add a wrong
-//! outlet that a full-frame search would not have given. Before the window is
-//! searched, the last outlet is verified where it was ([`Detector::verify_at`]:
-//! its holes refined from their last places and every check of a detection),
-//! which costs the refinement alone; the window is searched when that fails.
+//! outlet that a full-frame search would not have given. With
+//! [`TrackParams::follow`], before the window is searched, the last outlet is
+//! verified where it was ([`Detector::verify_at`]: its holes refined from their
+//! last places and every check of a detection), which costs the refinement
+//! alone; the window is searched when that fails.
 
 use crate::detect::{DetectReport, Detector, StageTimes};
 use image::GrayImage;
@@ -35,7 +36,13 @@ pub struct TrackParams {
     /// An outlet last seen longer ago than this (s) is looked for in the whole
     /// frame.
     pub max_age_s: f64,
-    /// Verify the last outlet where it was before searching the window.
+    /// Verify the last outlet where it was before searching the window. Off:
+    /// 0.48 ms instead of 1.1 per 640x480 frame, but in `outlet demo`'s
+    /// `white2x2` scene the followed holes were less accurate (in the face
+    /// plane 0.126 mm RMS against 0.093 searched, along the normal 0.33 against
+    /// 0.24) and 2 results in 1200 frames fell beyond 5 sigma where none did
+    /// searched: a fit started at the predicted place keeps some of that
+    /// place's error (BENCHMARKS.md, session 13).
     pub follow: bool,
     /// A followed hole may move at most this fraction of the last outlet's
     /// closest hole spacing (pixels): a hole never takes its neighbour's place,
@@ -51,7 +58,7 @@ impl Default for TrackParams {
             margin_per_s: 4.0,
             min_margin_px: 12.0,
             max_age_s: 0.5,
-            follow: true,
+            follow: false,
             max_follow_move: 0.5,
         }
     }
