@@ -170,6 +170,25 @@ pub struct Detection {
     pub homography: Matrix3<f64>,
 }
 
+impl Detection {
+    /// The same outlet in an image whose origin lies `shift` pixels up and left
+    /// of this one's (a crop's outlet in its frame).
+    fn translate(&mut self, shift: Vector2<f64>) {
+        for hole in &mut self.holes {
+            hole.pixel += shift;
+        }
+        self.homography = Matrix3::new(1.0, 0.0, shift.x, 0.0, 1.0, shift.y, 0.0, 0.0, 1.0) * self.homography;
+    }
+}
+
+/// The camera of `crop`, cut at `origin` from a frame of `camera`. Cropping
+/// moves the principal point only: distortion is a function of the normalised
+/// ray, which cropping does not change.
+fn crop_camera(camera: Option<&CameraModel>, crop: &GrayImage, origin: [u32; 2]) -> Option<CameraModel> {
+    let (width, height) = crop.dimensions();
+    camera.map(|c| CameraModel { width, height, cx: c.cx - origin[0] as f64, cy: c.cy - origin[1] as f64, ..*c })
+}
+
 /// Milliseconds per stage.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct StageTimes {
@@ -301,22 +320,14 @@ impl Detector {
         frame_size: [u32; 2],
         camera: Option<&CameraModel>,
     ) -> DetectReport {
-        let ([x, y], [w, h]) = (origin, frame_size);
-        let (cw, ch) = crop.dimensions();
-        // Cropping moves the principal point only: distortion is a function of
-        // the normalised ray, which cropping does not change.
-        let camera =
-            camera.map(|c| CameraModel { width: cw, height: ch, cx: c.cx - x as f64, cy: c.cy - y as f64, ..*c });
-        let mut report = self.detect_sized(crop, camera.as_ref(), w.max(h));
-        let (dx, dy) = (x as f64, y as f64);
+        let camera = crop_camera(camera, crop, origin);
+        let mut report = self.detect_sized(crop, camera.as_ref(), frame_size[0].max(frame_size[1]));
+        let shift = Vector2::new(origin[0] as f64, origin[1] as f64);
         if let Some(d) = report.detection.as_mut() {
-            for hole in &mut d.holes {
-                hole.pixel += Vector2::new(dx, dy);
-            }
-            d.homography = Matrix3::new(1.0, 0.0, dx, 0.0, 1.0, dy, 0.0, 0.0, 1.0) * d.homography;
+            d.translate(shift);
         }
         for (c, _) in &mut report.candidates {
-            c.centre += Vector2::new(dx, dy);
+            c.centre += shift;
         }
         report
     }
@@ -344,11 +355,10 @@ impl Detector {
         max_move_px: f64,
     ) -> DetectReport {
         let t = Instant::now();
-        let (dx, dy) = (origin[0] as f64, origin[1] as f64);
-        let (cw, ch) = crop.dimensions();
-        let camera = camera.map(|c| CameraModel { width: cw, height: ch, cx: c.cx - dx, cy: c.cy - dy, ..*c });
-        let to_crop = Matrix3::new(1.0, 0.0, -dx, 0.0, 1.0, -dy, 0.0, 0.0, 1.0);
-        let shifted: Vec<Option<Point2<f64>>> = guesses.iter().map(|g| Some(g - Vector2::new(dx, dy))).collect();
+        let shift = Vector2::new(origin[0] as f64, origin[1] as f64);
+        let camera = crop_camera(camera, crop, origin);
+        let to_crop = Matrix3::new(1.0, 0.0, -shift.x, 0.0, 1.0, -shift.y, 0.0, 0.0, 1.0);
+        let shifted: Vec<Option<Point2<f64>>> = guesses.iter().map(|g| Some(g - shift)).collect();
         let lens = Lens { camera: camera.as_ref() };
         let result = if guesses.len() != self.template.geometry.holes.len() {
             Err(format!(
@@ -360,14 +370,13 @@ impl Detector {
             // Its holes start where the last frame's motion puts them, next to
             // the plane's place for them: no second fit from there.
             self.refine_with(crop, &lens, &(to_crop * homography), &shifted, score, false).and_then(|mut d| {
-                for (hole, guess) in d.holes.iter_mut().zip(guesses) {
-                    hole.pixel += Vector2::new(dx, dy);
+                d.translate(shift);
+                for (hole, guess) in d.holes.iter().zip(guesses) {
                     let moved = (hole.pixel - guess).norm();
                     if moved.is_nan() || moved > max_move_px {
                         return Err(format!("a hole moved {moved:.1} px, more than {max_move_px:.1} px"));
                     }
                 }
-                d.homography = Matrix3::new(1.0, 0.0, dx, 0.0, 1.0, dy, 0.0, 0.0, 1.0) * d.homography;
                 Ok(d)
             })
         };
@@ -545,23 +554,24 @@ impl Detector {
         let mut refused = Vec::new();
         let report = self.detect_level(&half, half_camera.as_ref(), largest / 2, &mut refused);
         *times += report.times;
+        // OpenCV pixel centres: full = 2 half + 0.5, in the image as captured
+        // and in undistorted pixels alike (the camera is scaled the same way).
+        let up = Matrix3::new(2.0, 0.0, 0.5, 0.0, 2.0, 0.5, 0.0, 0.0, 1.0);
+        let to_full = |p: Point2<f64>| Point2::new(2.0 * p.x + 0.5, 2.0 * p.y + 0.5);
         // The level's candidates in this image's pixels.
         let candidates = report
             .candidates
             .iter()
             .map(|(c, class)| {
-                let centre = Point2::new(2.0 * c.centre.x + 0.5, 2.0 * c.centre.y + 0.5);
+                let centre = to_full(c.centre);
                 let size = [c.size[0].saturating_mul(2), c.size[1].saturating_mul(2)];
                 (Candidate { centre, size, area: c.area.saturating_mul(4), ..*c }, *class)
             })
             .collect();
         let outcome = match report.detection {
-            // OpenCV pixel centres: full = 2 half + 0.5, in the image as captured
-            // and in undistorted pixels alike (the camera is scaled the same way).
             Some(mut d) => {
-                let up = Matrix3::new(2.0, 0.0, 0.5, 0.0, 2.0, 0.5, 0.0, 0.0, 1.0);
                 for h in &mut d.holes {
-                    h.pixel = Point2::new(2.0 * h.pixel.x + 0.5, 2.0 * h.pixel.y + 0.5);
+                    h.pixel = to_full(h.pixel);
                     h.sigma_px *= 2.0;
                 }
                 d.homography = up * d.homography;
@@ -589,12 +599,10 @@ impl Detector {
             // verification decides, as for any outlet.
             None => {
                 let t = Instant::now();
-                let up = Matrix3::new(2.0, 0.0, 0.5, 0.0, 2.0, 0.5, 0.0, 0.0, 1.0);
                 let lens = Lens { camera };
                 let mut outcome = Err(report.rejected);
                 for h in &refused {
-                    let guesses: Vec<Option<Point2<f64>>> =
-                        h.guesses.iter().map(|g| g.map(|c| Point2::new(2.0 * c.x + 0.5, 2.0 * c.y + 0.5))).collect();
+                    let guesses: Vec<Option<Point2<f64>>> = h.guesses.iter().map(|g| g.map(to_full)).collect();
                     match self.refine_either(grey, &lens, &(up * h.transform), &guesses, h.score) {
                         Ok(found) => {
                             tracing::debug!("refused at half resolution, verified at full resolution");

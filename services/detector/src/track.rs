@@ -83,14 +83,25 @@ pub struct Tracked {
     pub searched: Searched,
 }
 
+/// A verified outlet as tracking remembers it.
+#[derive(Debug, Clone)]
+struct LastOutlet {
+    /// Hole pixels, template order.
+    holes: Vec<Point2<f64>>,
+    /// Its frame's time (s).
+    time_s: f64,
+    /// Template mm to undistorted pixels.
+    homography: Matrix3<f64>,
+    /// The hashing's score, carried into a followed detection.
+    score: usize,
+}
+
 /// The tracking state of one camera's frames.
 #[derive(Debug, Clone, Default)]
 pub struct Tracker {
     params: TrackParams,
-    /// The last verified outlet's hole pixels and its frame's time (s).
-    last: Option<(Vec<Point2<f64>>, f64)>,
-    /// Its homography (template mm to undistorted pixels) and hashing score.
-    last_outlet: Option<(Matrix3<f64>, usize)>,
+    /// The last verified outlet.
+    last: Option<LastOutlet>,
     /// The homography and frame time (s) of the outlet verified the frame
     /// before the last one, when that frame had one: the motion to predict.
     before_last: Option<(Matrix3<f64>, f64)>,
@@ -100,13 +111,12 @@ pub struct Tracker {
 
 impl Tracker {
     pub fn new(params: TrackParams) -> Self {
-        Self { params, last: None, last_outlet: None, before_last: None, windows_since_full: 0 }
+        Self { params, last: None, before_last: None, windows_since_full: 0 }
     }
 
     /// Forgets the last outlet: the next frame is searched whole.
     pub fn reset(&mut self) {
         self.last = None;
-        self.last_outlet = None;
         self.before_last = None;
         self.windows_since_full = 0;
     }
@@ -145,8 +155,8 @@ impl Tracker {
         time_s: f64,
     ) -> Result<Tracked, StageTimes> {
         let mut spent = StageTimes::default();
-        if let (true, Some((holes, then)), Some((homography, score))) =
-            (self.params.follow, self.last.as_ref(), self.last_outlet.as_ref())
+        if let (true, Some(LastOutlet { holes, time_s: then, homography, score })) =
+            (self.params.follow, self.last.as_ref())
         {
             let max_move = self.params.max_follow_move * closest_spacing(holes);
             // The holes moved on as they did between the last two frames: an
@@ -216,12 +226,16 @@ impl Tracker {
     }
 
     fn remember(&mut self, report: &DetectReport, time_s: f64) {
-        self.before_last = match (&self.last, &self.last_outlet, &report.detection) {
-            (Some((_, then)), Some((h, _)), Some(_)) => Some((*h, *then)),
+        self.before_last = match (&self.last, &report.detection) {
+            (Some(last), Some(_)) => Some((last.homography, last.time_s)),
             _ => None,
         };
-        self.last = report.detection.as_ref().map(|d| (d.holes.iter().map(|h| h.pixel).collect(), time_s));
-        self.last_outlet = report.detection.as_ref().map(|d| (d.homography, d.score));
+        self.last = report.detection.as_ref().map(|d| LastOutlet {
+            holes: d.holes.iter().map(|h| h.pixel).collect(),
+            time_s,
+            homography: d.homography,
+            score: d.score,
+        });
     }
 
     /// The window (`[x, y, width, height]`) in which a frame of `size` captured
@@ -236,11 +250,10 @@ impl Tracker {
         if p.full_frame_every <= 1 || self.windows_since_full + 1 >= p.full_frame_every {
             return None;
         }
-        let (holes, then) = self.last.as_ref()?;
+        let LastOutlet { holes, time_s: then, .. } = self.last.as_ref()?;
         let age = time_s - then;
         if !(age.is_finite() && age >= 0.0 && age <= p.max_age_s) {
             self.last = None;
-            self.last_outlet = None;
             self.before_last = None;
             return None;
         }
@@ -282,7 +295,12 @@ mod tests {
 
     fn tracking(holes: &[(f64, f64)], time_s: f64) -> Tracker {
         let mut t = Tracker::new(TrackParams::default());
-        t.last = Some((holes.iter().map(|&(x, y)| Point2::new(x, y)).collect(), time_s));
+        t.last = Some(LastOutlet {
+            holes: holes.iter().map(|&(x, y)| Point2::new(x, y)).collect(),
+            time_s,
+            homography: Matrix3::identity(),
+            score: 0,
+        });
         t
     }
 
