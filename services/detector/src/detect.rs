@@ -88,12 +88,6 @@ pub struct DetectorParams {
     /// from the nominal geometry (mm, per axis): on the Willow photographs the
     /// labelled holes leave 0.48-0.60 mm RMS from the contract's geometry.
     pub predicted_sigma_mm: f64,
-    /// Fit each hole again from where the plane through the fitted holes puts
-    /// it. Off: measured in session 13 (BENCHMARKS.md), it lowers the rendered
-    /// median hole error 0.118 -> 0.112 px and the Willow views' 0.75 -> 0.69
-    /// px, but `outlet demo` gave 3 results beyond 3 mm or 5 sigma in 1200
-    /// frames of each default scene against none, and a larger hole error.
-    pub refit_from_plane: bool,
 }
 
 impl Default for DetectorParams {
@@ -118,7 +112,6 @@ impl Default for DetectorParams {
             full_after_coarse_below_pitch_px: 12.0,
             min_fitted_for_prediction: 5,
             predicted_sigma_mm: 0.5,
-            refit_from_plane: false,
         }
     }
 }
@@ -247,10 +240,6 @@ pub struct Detector {
     params: DetectorParams,
 }
 
-/// A hole fitted closer than this (pixels) to where the plane puts it is not
-/// fitted again from there: the same start.
-const REFIT_MIN_START_PX: f64 = 0.05;
-
 /// The farthest outlet the detector looks for when it knows the camera (mm):
 /// the hashing's smallest scale, and what the half level of a large image must
 /// resolve. The robot parks 20-50 cm from the wall.
@@ -367,9 +356,7 @@ impl Detector {
                 self.template.geometry.holes.len()
             ))
         } else {
-            // Its holes start where the last frame's motion puts them, next to
-            // the plane's place for them: no second fit from there.
-            self.refine_with(crop, &lens, &(to_crop * homography), &shifted, score, false).and_then(|mut d| {
+            self.refine(crop, &lens, &(to_crop * homography), &shifted, score).and_then(|mut d| {
                 d.translate(shift);
                 for (hole, guess) in d.holes.iter().zip(guesses) {
                     let moved = (hole.pixel - guess).norm();
@@ -689,20 +676,6 @@ impl Detector {
         guesses: &[Option<Point2<f64>>],
         score: usize,
     ) -> Result<Detection, String> {
-        self.refine_with(grey, lens, homography, guesses, score, self.params.refit_from_plane)
-    }
-
-    /// [`Self::refine`], each fitted hole fitted again from the plane's place
-    /// for it when `refit` ([`DetectorParams::refit_from_plane`]).
-    fn refine_with(
-        &self,
-        grey: &GrayImage,
-        lens: &Lens,
-        homography: &Matrix3<f64>,
-        guesses: &[Option<Point2<f64>>],
-        score: usize,
-        refit: bool,
-    ) -> Result<Detection, String> {
         let model: Vec<Point2<f64>> = self.template.geometry.holes.iter().map(|h| h.position()).collect();
         let mut fits: Vec<Option<Refined>> = Vec::with_capacity(model.len());
         let mut jacobians: Vec<Matrix2<f64>> = Vec::with_capacity(model.len());
@@ -727,40 +700,7 @@ impl Detector {
         // Pixels per mm along the outlet's least foreshortened direction.
         let scale = local_jacobian(homography, lens, &centroid(&model)).ok_or_else(degenerate)?.singular_values().max();
         let tolerance = self.params.max_plane_px.max(self.params.max_plane_mm * scale);
-        let mut h = plane_fit(&model, &mut refined, lens, tolerance, min_holes)?;
-        if refit {
-            // Each fitted hole is fitted again from where the plane through all
-            // of them puts it: the outline fit's optimum depends on its start
-            // (its robust weights are held after two iterations), and the
-            // holes' consensus is a better start than a candidate's centre (a
-            // plain frontal slot fitted 0.9 px off along its length from its
-            // candidate lands 0.2 px from the truth from there). The hole is no
-            // surer than its first fit said. (Taking the two fits' distance as
-            // a floor of its sigma as well gave that very slot a 0.75 px sigma.)
-            let mut moved = false;
-            for (i, t) in model.iter().enumerate() {
-                let (Some(first), Some(q), Some(first_sigma)) = (refined[i], apply(&h, t), fits[i].map(|f| f.sigma_px))
-                else {
-                    continue;
-                };
-                let start = lens.distort(q);
-                if (start - first).norm() < REFIT_MIN_START_PX {
-                    continue;
-                }
-                let Some(jacobian) = local_jacobian(&h, lens, t) else { continue };
-                if let Some(fit) = refine_hole(grey, start, &jacobian, self.outlines[i], &self.params.refine)
-                    && (lens.undistort(fit.centre) - q).norm() <= tolerance
-                {
-                    refined[i] = Some(fit.centre);
-                    fits[i] = Some(Refined { sigma_px: fit.sigma_px.max(first_sigma), ..fit });
-                    jacobians[i] = jacobian;
-                    moved = true;
-                }
-            }
-            if moved {
-                h = plane_fit(&model, &mut refined, lens, tolerance, min_holes)?;
-            }
-        }
+        let h = plane_fit(&model, &mut refined, lens, tolerance, min_holes)?;
         // A hole not found (faint: washed out, in shadow; or its first guess too
         // far off) is looked for once more where the seen holes' homography puts
         // it, with less contrast; it counts only if it lands on that plane too.

@@ -36,13 +36,14 @@ pub struct TrackParams {
     /// An outlet last seen longer ago than this (s) is looked for in the whole
     /// frame.
     pub max_age_s: f64,
-    /// Verify the last outlet where it was before searching the window. Off:
-    /// 0.48 ms instead of 1.1 per 640x480 frame, but in `outlet demo`'s
-    /// `white2x2` scene the followed holes were less accurate (in the face
-    /// plane 0.126 mm RMS against 0.093 searched, along the normal 0.33 against
-    /// 0.24) and 2 results in 1200 frames fell beyond 5 sigma where none did
-    /// searched: a fit started at the predicted place keeps some of that
-    /// place's error (BENCHMARKS.md, session 13).
+    /// Verify the last outlet where it was before searching the window: 0.48
+    /// ms instead of 1.1 per 640x480 frame. Off in session 13, when a fit
+    /// started at the predicted place kept some of that place's error (the
+    /// `white2x2` demo's followed holes 0.126 mm RMS in the face plane against
+    /// 0.093 searched); on since the outline fit ends where it ends from any
+    /// nearby start (`RefineParams::rough_edge_px`): 0.097 mm followed and
+    /// searched alike, and no result beyond 5 sigma in either default demo
+    /// scene (BENCHMARKS.md, session 14).
     pub follow: bool,
     /// A followed hole may move at most this fraction of the last outlet's
     /// closest hole spacing (pixels): a hole never takes its neighbour's place,
@@ -58,7 +59,7 @@ impl Default for TrackParams {
             margin_per_s: 4.0,
             min_margin_px: 12.0,
             max_age_s: 0.5,
-            follow: false,
+            follow: true,
             max_follow_move: 0.5,
         }
     }

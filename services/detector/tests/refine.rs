@@ -37,24 +37,35 @@ fn refined_centres_are_within_a_fifth_of_a_pixel() {
     assert!(failed * 20 <= errors.len(), "{failed} refused");
 }
 
-/// The outline fit's optimum depends on where it starts: on this plain frontal
-/// outlet the upper neutral slot, fitted from its candidate's centre, lands
-/// 0.9 px along its length from the truth with a 0.13 px sigma. Fitted again
-/// from where the plane through all the holes puts it, it lands within 0.3 px.
+/// Where the fit starts does not decide where it ends: from eight starts 1.2 px
+/// around a hole, one hole's results lie within a few hundredths of a pixel of
+/// each other for nearly every hole. With the first fit's edge as sharp as the
+/// fine fit's (`rough_edge_px` 1), a tenth of the holes ended up to 0.55 px
+/// apart (a local minimum about every pixel along a blurred edge).
 #[test]
-fn a_hole_fitted_again_from_the_plane_lands_nearer_the_truth() {
-    let scene = common::plain_scene(1, 0.32, 10.0, 30.0, 0.0);
-    let frame = outlet_sim::render_frame(&scene, "x");
-    let truth = common::truth_pixels(&frame);
-    let found = |refit_from_plane| {
-        let params = outlet_detector::detect::DetectorParams { refit_from_plane, ..Default::default() };
-        outlet_detector::detect::Detector::new(common::template().clone(), params)
-            .detect(&frame.frame.image, Some(&scene.camera))
-            .detection
-            .expect("a plain frontal outlet is found")
+fn a_hole_is_fitted_to_the_same_place_from_any_nearby_start() {
+    let spread_p90 = |params: &RefineParams| {
+        let mut spreads = Vec::new();
+        for scenario in ["fw_2x1white", "whitehall2x1", "cracked2x2", "fw_2x2orange", "specular2x2"] {
+            each_rendered_hole(scenario, 21, 3, |grey, truth, j, outline| {
+                let ends: Vec<_> = (0..8)
+                    .filter_map(|k| {
+                        let a = k as f64 * std::f64::consts::FRAC_PI_4;
+                        let guess = truth + Vector2::new(a.cos(), a.sin()) * 1.2;
+                        refine_hole(grey, guess, j, outline, params).map(|r| r.centre)
+                    })
+                    .collect();
+                let spread = ends.iter().flat_map(|a| ends.iter().map(move |b| (a - b).norm())).fold(0.0, f64::max);
+                spreads.push(spread);
+            });
+        }
+        spreads.sort_by(f64::total_cmp);
+        (spreads.len(), spreads[spreads.len() * 9 / 10])
     };
-    let once = common::worst_error(&found(false), &truth);
-    let again = common::worst_error(&found(true), &truth);
-    assert!(once > 0.6, "the first fit's worst hole is {once:.2} px off: the test no longer covers a bad start");
-    assert!(again < 0.3, "fitted again, the worst hole is {again:.2} px off");
+    let (holes, soft) = spread_p90(&RefineParams::default());
+    let (_, sharp) = spread_p90(&RefineParams { rough_edge_px: 1.0, ..RefineParams::default() });
+    println!("{holes} holes: 90th percentile of the spread {soft:.3} px (a sharp first fit: {sharp:.3} px)");
+    assert!(holes >= 100, "only {holes} holes");
+    assert!(soft < 0.15, "one hole's fits from eight starts spread {soft:.3} px (90th percentile)");
+    assert!(sharp > 2.0 * soft, "the sharp first fit spreads {sharp:.3} px: the test no longer tells the two apart");
 }

@@ -27,9 +27,9 @@ fn every_hole_near(d: &Detection, truth: &[Point2<f64>]) -> bool {
 #[test]
 fn an_approaching_outlet_is_tracked_in_windows_with_full_frame_accuracy() {
     let detector = detector();
-    // Followed (off by default), the strictest case: the holes' fits start at
+    // Followed (the default), the strictest case: the holes' fits start at
     // their predicted places instead of candidates' centres.
-    let mut tracker = Tracker::new(TrackParams { follow: true, ..TrackParams::default() });
+    let mut tracker = Tracker::new(TrackParams::default());
     let mut windows = 0;
     // Squared hole errors (px^2) after the first frame: tracked, full frame.
     let mut squared = [0.0f64; 2];
@@ -49,9 +49,7 @@ fn an_approaching_outlet_is_tracked_in_windows_with_full_frame_accuracy() {
         assert!(every_hole_near(t, &truth), "frame {k}: tracked holes {:.2} px off", worst_error(t, &truth));
         // The holes of a full-frame search, or as near the truth: a followed
         // hole's fit starts from where the last frame's motion puts it instead
-        // of a candidate's centre, and the outline fit's optimum depends a
-        // little on its start (on these frames the full frame's worst hole is
-        // 0.88 px off, the followed one's 0.32).
+        // of a candidate's centre.
         for ((a, b), p) in t.holes.iter().zip(&f.holes).zip(&truth) {
             assert_eq!(a.kind, b.kind);
             if k > 0 {
