@@ -411,7 +411,9 @@ fn detect_track_searches_a_window_after_a_found_frame_with_the_same_holes() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let records = lines(&out);
     let searched: Vec<&str> = records.iter().map(|r| r["searched"].as_str().expect("searched")).collect();
-    assert_eq!(searched, ["full_frame", "window", "window", "full_frame_after_window", "full_frame"]);
+    // A still outlet is followed (verified where it was, no search); the bare
+    // wall refuses the follow, then the window, then the whole frame finds nothing.
+    assert_eq!(searched, ["full_frame", "followed", "followed", "full_frame_after_window", "full_frame"]);
     let found: Vec<bool> = records.iter().map(|r| r["found"].as_bool().expect("found")).collect();
     assert_eq!(found, [true, true, true, false, true]);
     let holes = |r: &Value| -> Vec<[f64; 2]> {
@@ -422,10 +424,13 @@ fn detect_track_searches_a_window_after_a_found_frame_with_the_same_holes() {
             .map(|h| [h["pixel"][0].as_f64().unwrap_or(f64::NAN), h["pixel"][1].as_f64().unwrap_or(f64::NAN)])
             .collect()
     };
+    // A followed hole's fit starts where the last frame's ended, not at a
+    // candidate's centre: the same place to within the fit's spread over
+    // nearby starts (a few hundredths of a pixel; `tests/refine.rs`).
     let whole = holes(&records[0]);
-    for r in [&records[1], &records[2], &records[4]] {
+    for (r, within) in [(&records[1], 0.1), (&records[2], 0.1), (&records[4], 1e-9)] {
         for (a, b) in whole.iter().zip(holes(r)) {
-            assert!((a[0] - b[0]).hypot(a[1] - b[1]) < 0.05, "a window's hole {b:?} against the whole frame's {a:?}");
+            assert!((a[0] - b[0]).hypot(a[1] - b[1]) < within, "a tracked hole {b:?} against the whole frame's {a:?}");
         }
     }
     let bad = outlet(&["detect", "--template", "2x2", "--track", "0", &image]);
