@@ -283,6 +283,10 @@ pub fn compare_outlines(
     Some([theirs - sse(&mine), sse(&mine)])
 }
 
+/// The first fit of [`refine_hole`] only chooses the basin the fine fit
+/// settles in: it stops at steps under this (px).
+const ROUGH_STOP_PX: f64 = 0.05;
+
 /// What one outline fit is for: which of its results are wanted decides what it
 /// computes (the sigma's normal equations and the edge width cost as much as a
 /// few iterations, and most fits use neither).
@@ -295,17 +299,19 @@ struct FitMode {
     /// Compute the centre's covariance ([`Refined::sigma_px`]); without it the
     /// sigma is reported as `max_shift_px`.
     sigma: bool,
+    /// The iterations stop once a step moves the outline less than this (px).
+    stop_px: f64,
 }
 
 impl FitMode {
     /// The first, plain fit of [`refine_hole`]: only its centre is used.
-    const ROUGH: Self = Self { robust: false, measure_edge: false, sigma: false };
+    const ROUGH: Self = Self { robust: false, measure_edge: false, sigma: false, stop_px: ROUGH_STOP_PX };
     /// The final fit of [`refine_hole`].
-    const FINE: Self = Self { robust: true, measure_edge: true, sigma: true };
+    const FINE: Self = Self { robust: true, measure_edge: true, sigma: true, stop_px: 0.005 };
     /// [`outline_at`]: the outline where it is put, with its sigma.
-    const CHECK: Self = Self { robust: true, measure_edge: false, sigma: true };
+    const CHECK: Self = Self { robust: true, measure_edge: false, sigma: true, stop_px: 0.005 };
     /// [`compare_outlines`]: only the residuals are used.
-    const COMPARE: Self = Self { robust: true, measure_edge: false, sigma: false };
+    const COMPARE: Self = Self { robust: true, measure_edge: false, sigma: false, stop_px: 0.005 };
 }
 
 fn fit(
@@ -350,7 +356,7 @@ fn fit_with(
     window_mm: [f64; 2],
     scratch: &mut FitScratch,
 ) -> Option<Refined> {
-    let FitMode { robust, measure_edge, sigma } = mode;
+    let FitMode { robust, measure_edge, sigma, stop_px } = mode;
     let FitScratch { pixels, weights, cov, cov_dx, cov_dy, abs, r } = scratch;
     let px_to_mm = mm_to_px.try_inverse()?;
     let [ex, ey] = window_mm;
@@ -478,7 +484,7 @@ fn fit_with(
         let delta = (jtj + Matrix2::identity() * 1e-9).try_inverse()? * jtr;
         let delta = if delta.norm() > 1.0 { delta / delta.norm() } else { delta };
         t += delta;
-        if delta.norm() < 0.005 {
+        if delta.norm() < stop_px {
             break;
         }
     }

@@ -134,10 +134,21 @@ impl Tracker {
         let size = [grey.width(), grey.height()];
         let mut tried = None;
         if let Some(w) = self.window_for(size, time_s) {
+            // The follow reads only the pixels around the holes: from the frame
+            // itself, without copying the window out of it.
+            let followed = self.follow(detector, grey, [0, 0], w, camera, time_s);
+            if let Ok(tracked) = followed {
+                return tracked;
+            }
             let crop = image::imageops::crop_imm(grey, w[0], w[1], w[2], w[3]).to_image();
-            match self.search_window(detector, &crop, w, size, camera, time_s) {
+            match self.search_window_only(detector, &crop, w, size, camera, time_s) {
                 Ok(tracked) => return tracked,
-                Err(times) => tried = Some(times),
+                Err(mut times) => {
+                    if let Err(spent) = followed {
+                        times += spent;
+                    }
+                    tried = Some(times)
+                }
             }
         }
         self.search_full_frame(detector, grey, camera, time_s, tried)
@@ -155,35 +166,67 @@ impl Tracker {
         camera: Option<&CameraModel>,
         time_s: f64,
     ) -> Result<Tracked, StageTimes> {
-        let mut spent = StageTimes::default();
-        if let (true, Some(LastOutlet { holes, time_s: then, homography, score })) =
+        let spent = match self.follow(detector, crop, [window[0], window[1]], window, camera, time_s) {
+            Ok(tracked) => return Ok(tracked),
+            Err(spent) => spent,
+        };
+        self.search_window_only(detector, crop, window, frame_size, camera, time_s).map_err(|mut times| {
+            times += spent;
+            times
+        })
+    }
+
+    /// With [`TrackParams::follow`], verifies the last outlet where the motion
+    /// puts it in `grey`, the part of the frame at `origin` (the whole frame,
+    /// or `window` cut from it): the tracked result, or the time spent.
+    fn follow(
+        &mut self,
+        detector: &Detector,
+        grey: &GrayImage,
+        origin: [u32; 2],
+        window: [u32; 4],
+        camera: Option<&CameraModel>,
+        time_s: f64,
+    ) -> Result<Tracked, StageTimes> {
+        let (true, Some(LastOutlet { holes, time_s: then, homography, score })) =
             (self.params.follow, self.last.as_ref())
-        {
-            let max_move = self.params.max_follow_move * closest_spacing(holes);
-            // The holes moved on as they did between the last two frames: an
-            // approach at 10 cm/s moves a hole of an HD frame by several pixels
-            // a frame, more than a fit started at its last place follows.
-            let predicted = self.predicted(homography, *then, time_s);
-            let model = detector.template().geometry.holes.iter().map(|h| h.position());
-            let guesses: Vec<Point2<f64>> = holes
-                .iter()
-                .zip(model)
-                .map(|(p, t)| match (apply_homography(&predicted, &t), apply_homography(homography, &t)) {
-                    (Some(a), Some(b)) => p + (a - b),
-                    _ => *p,
-                })
-                .collect();
-            let report =
-                detector.verify_at(crop, [window[0], window[1]], camera, &predicted, &guesses, *score, max_move);
-            if report.detection.is_some() {
-                self.windows_since_full += 1;
-                self.remember(&report, time_s);
-                return Ok(Tracked { report, searched: Searched::Followed(window) });
-            }
-            spent = report.times;
+        else {
+            return Err(StageTimes::default());
+        };
+        let max_move = self.params.max_follow_move * closest_spacing(holes);
+        // The holes moved on as they did between the last two frames: an
+        // approach at 10 cm/s moves a hole of an HD frame by several pixels
+        // a frame, more than a fit started at its last place follows.
+        let predicted = self.predicted(homography, *then, time_s);
+        let model = detector.template().geometry.holes.iter().map(|h| h.position());
+        let guesses: Vec<Point2<f64>> = holes
+            .iter()
+            .zip(model)
+            .map(|(p, t)| match (apply_homography(&predicted, &t), apply_homography(homography, &t)) {
+                (Some(a), Some(b)) => p + (a - b),
+                _ => *p,
+            })
+            .collect();
+        let report = detector.verify_at(grey, origin, camera, &predicted, &guesses, *score, max_move);
+        if report.detection.is_none() {
+            return Err(report.times);
         }
-        let mut report = detector.detect_crop(crop, [window[0], window[1]], frame_size, camera);
-        report.times += spent;
+        self.windows_since_full += 1;
+        self.remember(&report, time_s);
+        Ok(Tracked { report, searched: Searched::Followed(window) })
+    }
+
+    /// [`Self::search_window`] without the follow.
+    fn search_window_only(
+        &mut self,
+        detector: &Detector,
+        crop: &GrayImage,
+        window: [u32; 4],
+        frame_size: [u32; 2],
+        camera: Option<&CameraModel>,
+        time_s: f64,
+    ) -> Result<Tracked, StageTimes> {
+        let report = detector.detect_crop(crop, [window[0], window[1]], frame_size, camera);
         if report.detection.is_none() {
             return Err(report.times);
         }
