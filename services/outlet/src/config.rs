@@ -53,7 +53,13 @@ pub struct PoseConfig {
     /// A plane further than this in time from a detection is not used (ms).
     pub max_plane_age_ms: f64,
     /// How long a detection waits for the plane of its own frame (ms) before
-    /// it is joined with the closest plane there is.
+    /// it is joined with the closest plane there is. A moving camera's closest
+    /// other plane is of another place: at 50 ms, 1000 realistic plug-in trials
+    /// on a loaded machine joined some detections with the frame before's
+    /// plane or solved them in mono (14 `ambiguous` frames), and 1-2 poses per
+    /// run came out 7-18 mm off beyond 5 sigma; at 250 ms, 8 `ambiguous` and
+    /// none beyond 5 sigma (BENCHMARKS.md, session 14). A plane on time costs
+    /// no wait.
     pub plane_wait_ms: f64,
     /// Standard deviation of a detected hole's pixel (px), for holes the detector
     /// gives no `sigma_px` of their own.
@@ -128,7 +134,7 @@ impl Default for PoseConfig {
         Self {
             template: "2x1".into(),
             max_plane_age_ms: 200.0,
-            plane_wait_ms: 50.0,
+            plane_wait_ms: 250.0,
             pixel_sigma: 0.25,
             max_rms_px: 2.0,
             face_offset_sigma_mm: crate::ModelError::REAL_STEREO.face_offset_sigma_mm,
