@@ -170,8 +170,13 @@ impl Detection {
         for hole in &mut self.holes {
             hole.pixel += shift;
         }
-        self.homography = Matrix3::new(1.0, 0.0, shift.x, 0.0, 1.0, shift.y, 0.0, 0.0, 1.0) * self.homography;
+        self.homography = translation(shift) * self.homography;
     }
+}
+
+/// The homography that moves pixels by `shift`.
+fn translation(shift: Vector2<f64>) -> Matrix3<f64> {
+    Matrix3::new(1.0, 0.0, shift.x, 0.0, 1.0, shift.y, 0.0, 0.0, 1.0)
 }
 
 /// The camera of `crop`, cut at `origin` from a frame of `camera`. Cropping
@@ -346,7 +351,7 @@ impl Detector {
         let t = Instant::now();
         let shift = Vector2::new(origin[0] as f64, origin[1] as f64);
         let camera = crop_camera(camera, crop, origin);
-        let to_crop = Matrix3::new(1.0, 0.0, -shift.x, 0.0, 1.0, -shift.y, 0.0, 0.0, 1.0);
+        let to_crop = translation(-shift);
         let shifted: Vec<Option<Point2<f64>>> = guesses.iter().map(|g| Some(g - shift)).collect();
         let lens = Lens { camera: camera.as_ref() };
         let result = if guesses.len() != self.template.geometry.holes.len() {

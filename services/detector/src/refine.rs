@@ -287,6 +287,9 @@ pub fn compare_outlines(
 /// settles in: it stops at steps under this (px).
 const ROUGH_STOP_PX: f64 = 0.05;
 
+/// Every other fit stops at steps under this (px).
+const STOP_PX: f64 = 0.005;
+
 /// What one outline fit is for: which of its results are wanted decides what it
 /// computes (the sigma's normal equations and the edge width cost as much as a
 /// few iterations, and most fits use neither).
@@ -307,11 +310,11 @@ impl FitMode {
     /// The first, plain fit of [`refine_hole`]: only its centre is used.
     const ROUGH: Self = Self { robust: false, measure_edge: false, sigma: false, stop_px: ROUGH_STOP_PX };
     /// The final fit of [`refine_hole`].
-    const FINE: Self = Self { robust: true, measure_edge: true, sigma: true, stop_px: 0.005 };
+    const FINE: Self = Self { robust: true, measure_edge: true, sigma: true, stop_px: STOP_PX };
     /// [`outline_at`]: the outline where it is put, with its sigma.
-    const CHECK: Self = Self { robust: true, measure_edge: false, sigma: true, stop_px: 0.005 };
+    const CHECK: Self = Self { robust: true, measure_edge: false, sigma: true, stop_px: STOP_PX };
     /// [`compare_outlines`]: only the residuals are used.
-    const COMPARE: Self = Self { robust: true, measure_edge: false, sigma: false, stop_px: 0.005 };
+    const COMPARE: Self = Self { robust: true, measure_edge: false, sigma: false, stop_px: STOP_PX };
 }
 
 fn fit(

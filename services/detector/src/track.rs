@@ -136,18 +136,16 @@ impl Tracker {
         if let Some(w) = self.window_for(size, time_s) {
             // The follow reads only the pixels around the holes: from the frame
             // itself, without copying the window out of it.
-            let followed = self.follow(detector, grey, [0, 0], w, camera, time_s);
-            if let Ok(tracked) = followed {
-                return tracked;
-            }
+            let mut spent = match self.follow(detector, grey, [0, 0], w, camera, time_s) {
+                Ok(tracked) => return tracked,
+                Err(spent) => spent,
+            };
             let crop = image::imageops::crop_imm(grey, w[0], w[1], w[2], w[3]).to_image();
             match self.search_window_only(detector, &crop, w, size, camera, time_s) {
                 Ok(tracked) => return tracked,
-                Err(mut times) => {
-                    if let Err(spent) = followed {
-                        times += spent;
-                    }
-                    tried = Some(times)
+                Err(times) => {
+                    spent += times;
+                    tried = Some(spent);
                 }
             }
         }
@@ -208,12 +206,7 @@ impl Tracker {
             })
             .collect();
         let report = detector.verify_at(grey, origin, camera, &predicted, &guesses, *score, max_move);
-        if report.detection.is_none() {
-            return Err(report.times);
-        }
-        self.windows_since_full += 1;
-        self.remember(&report, time_s);
-        Ok(Tracked { report, searched: Searched::Followed(window) })
+        self.accept(report, time_s, Searched::Followed(window))
     }
 
     /// [`Self::search_window`] without the follow.
@@ -227,12 +220,18 @@ impl Tracker {
         time_s: f64,
     ) -> Result<Tracked, StageTimes> {
         let report = detector.detect_crop(crop, [window[0], window[1]], frame_size, camera);
+        self.accept(report, time_s, Searched::Window(window))
+    }
+
+    /// A followed or window-searched frame's report: tracked when it has an
+    /// outlet, else the stages' times spent.
+    fn accept(&mut self, report: DetectReport, time_s: f64, searched: Searched) -> Result<Tracked, StageTimes> {
         if report.detection.is_none() {
             return Err(report.times);
         }
         self.windows_since_full += 1;
         self.remember(&report, time_s);
-        Ok(Tracked { report, searched: Searched::Window(window) })
+        Ok(Tracked { report, searched })
     }
 
     /// Searches the whole frame; `after_window` holds the times of a window
