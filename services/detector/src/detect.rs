@@ -694,6 +694,7 @@ impl Detector {
             };
             let jacobian = local_jacobian(homography, lens, t).ok_or_else(degenerate)?;
             let fit = refine_hole(grey, guess, &jacobian, self.outlines[i], &self.params.refine);
+            tracing::trace!(hole = i, ?guess, ?predicted, fitted = ?fit.map(|f| f.centre), "hole refined");
             fits.push(fit);
             jacobians.push(jacobian);
         }

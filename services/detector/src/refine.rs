@@ -287,8 +287,11 @@ pub fn compare_outlines(
 /// settles in: it stops at steps under this (px).
 const ROUGH_STOP_PX: f64 = 0.05;
 
-/// Every other fit stops at steps under this (px).
-const STOP_PX: f64 = 0.005;
+/// Every other fit stops at steps under this (px): a hundredth of a pixel,
+/// against hole errors of a tenth. At 0.005 the fine fit took 6.7 iterations
+/// on average and 5 at 0.01, with the same hole errors over Table I (median
+/// 0.117 px, p90 0.275 -> 0.273, p99 0.529 -> 0.525).
+const STOP_PX: f64 = 0.01;
 
 /// What one outline fit is for: which of its results are wanted decides what it
 /// computes (the sigma's normal equations and the edge width cost as much as a
@@ -416,10 +419,23 @@ fn fit_with(
         out_dx.clear();
         out_dy.clear();
         let (tx, ty) = (t + Vector2::new(step, 0.0), t + Vector2::new(0.0, step));
+        // The outline's distance moves by at most the step's length in mm (a
+        // distance is 1-Lipschitz): away from the edge all three coverages are
+        // the same 0 or 1, and only the edge's band needs the shifted distances.
+        let band = step * px_to_mm.column(0).norm().max(px_to_mm.column(1).norm()) / pixel_mm + 1e-9;
         for (d, _) in pixels {
-            for (out, t) in [(&mut *out, t), (&mut *out_dx, tx), (&mut *out_dy, ty)] {
-                let q = px_to_mm * (d - t);
-                out.push(((0.5 - shape.sd(q) / pixel_mm).clamp(0.0, 1.0), q));
+            let q = px_to_mm * (d - t);
+            let (qx, qy) = (px_to_mm * (d - tx), px_to_mm * (d - ty));
+            let level = 0.5 - shape.sd(q) / pixel_mm;
+            if level >= 1.0 + band || level <= -band {
+                let m = level.clamp(0.0, 1.0);
+                out.push((m, q));
+                out_dx.push((m, qx));
+                out_dy.push((m, qy));
+            } else {
+                out.push((level.clamp(0.0, 1.0), q));
+                out_dx.push(((0.5 - shape.sd(qx) / pixel_mm).clamp(0.0, 1.0), qx));
+                out_dy.push(((0.5 - shape.sd(qy) / pixel_mm).clamp(0.0, 1.0), qy));
             }
         }
     };
@@ -479,6 +495,11 @@ fn fit_with(
         let mut jtj = Matrix2::zeros();
         let mut jtr = Vector2::zeros();
         for i in 0..pixels.len() {
+            // Outside the outline and its edge the model is the face's level
+            // wherever the outline moves: no gradient.
+            if cov[i].0 == 0.0 && cov_dx[i].0 == 0.0 && cov_dy[i].0 == 0.0 {
+                continue;
+            }
             let base = model(&cov[i]);
             let j = Vector2::new((model(&cov_dx[i]) - base) / step, (model(&cov_dy[i]) - base) / step);
             jtj += j * j.transpose() * weights[i];
