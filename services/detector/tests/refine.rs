@@ -69,3 +69,39 @@ fn a_hole_is_fitted_to_the_same_place_from_any_nearby_start() {
     assert!(soft < 0.15, "one hole's fits from eight starts spread {soft:.3} px (90th percentile)");
     assert!(sharp > 2.0 * soft, "the sharp first fit spreads {sharp:.3} px: the test no longer tells the two apart");
 }
+
+/// A slot `depth` grey levels below a face at `face`, 4 px per mm, drawn with a
+/// pixel of soft edge (area coverage sampled 4x4 per pixel).
+fn slot_on_face(face: u8, depth: u8) -> (image::GrayImage, nalgebra::Point2<f64>) {
+    let centre = nalgebra::Point2::new(40.3, 39.6);
+    let (half_w, half_l) = (2.0 * 4.0 / 2.0, 7.1 * 4.0 / 2.0);
+    let grey = image::GrayImage::from_fn(80, 80, |x, y| {
+        let mut inside = 0.0;
+        for k in 0..16 {
+            let px = x as f64 + (k % 4) as f64 / 4.0 - 0.375 - centre.x;
+            let py = y as f64 + (k / 4) as f64 / 4.0 - 0.375 - centre.y;
+            inside += f64::from(px.abs() <= half_w && py.abs() <= half_l) / 16.0;
+        }
+        image::Luma([(face as f64 - inside * depth as f64).round() as u8])
+    });
+    (grey, centre)
+}
+
+#[test]
+fn a_faint_slot_counts_on_a_clipped_face_but_not_on_a_lit_one() {
+    let outline = outlet_detector::refine::HoleShape::Slot { width_mm: 2.0, length_mm: 7.1 };
+    let j = nalgebra::Matrix2::new(4.0, 0.0, 0.0, 4.0);
+    let params = RefineParams::default();
+    // 16 grey levels below 255: 0.063 of the face, under the 0.12 asked of a lit
+    // face but over half of it, asked where the face is clipped (glare).
+    let (clipped, centre) = slot_on_face(255, 16);
+    let guess = centre + nalgebra::Vector2::new(0.6, -0.5);
+    let fit = refine_hole(&clipped, guess, &j, outline, &params).expect("the slot in the glare is found");
+    assert!((fit.centre - centre).norm() < 0.2, "centre {:?} against {centre:?}", fit.centre);
+    // The same 16 levels below a face at 200 (0.08) is too faint to count.
+    let (lit, _) = slot_on_face(200, 16);
+    assert!(refine_hole(&lit, guess, &j, outline, &params).is_none(), "a faint slot on a lit face is not an opening");
+    // And without the clipped face's allowance the glare's slot is refused too.
+    let strict = RefineParams { clipped_contrast_share: 1.0, ..params };
+    assert!(refine_hole(&clipped, guess, &j, outline, &strict).is_none());
+}
