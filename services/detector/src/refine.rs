@@ -465,6 +465,13 @@ fn fit_with(
         // misplaced outline would mimic the shift and stall the fit.
         let ramp = if robust { 1.0 } else { 0.0 };
         for (((m, q), (_, v)), w) in cov.iter().zip(pixels).zip(weights) {
+            // Most of the window is face (three quarters of a slot's): its row
+            // is (1, 0, 0, 0).
+            if *m == 0.0 {
+                ata[(0, 0)] += *w;
+                atb[0] += *v * *w;
+                continue;
+            }
             let row = [1.0 - m, *m, m * q.x * ramp, m * q.y * ramp];
             // The upper triangle only (the matrix is symmetric; each entry is
             // the same product as in the full outer product).
