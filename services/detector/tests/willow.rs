@@ -112,19 +112,8 @@ fn a_hole_taken_from_the_homography_needs_a_checked_fit_and_carries_its_doubt() 
 struct View {
     image: String,
     off_axis_deg: f64,
-    camera: CameraJson,
+    camera: CameraModel,
     holes: Vec<[f64; 2]>,
-}
-
-#[derive(serde::Deserialize)]
-struct CameraJson {
-    width: u32,
-    height: u32,
-    fx: f64,
-    fy: f64,
-    cx: f64,
-    cy: f64,
-    distortion: [f64; 5],
 }
 
 #[test]
@@ -141,7 +130,7 @@ fn the_template_of_the_oblique_photo_finds_the_outlet_seen_head_on() {
     for view in &views {
         assert!(view.off_axis_deg < 5.0);
         let image = image::open(format!("{dir}/{}", view.image)).expect("view").to_rgb8();
-        let c = &view.camera;
+        let c = view.camera;
         let camera = CameraModel::new(c.width, c.height, [c.fx, c.fy, c.cx, c.cy], c.distortion).expect("camera");
         let report = detector.detect(&image, Some(&camera));
         // A refusal is allowed, a wrong hole is not. The rolled view sits on the

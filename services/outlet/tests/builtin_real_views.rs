@@ -13,20 +13,9 @@ use outlet_protocol::CameraModel;
 #[derive(serde::Deserialize)]
 struct View {
     image: String,
-    camera: CameraJson,
+    camera: CameraModel,
     /// The labels of V000 carried into the view, template order, crop pixels.
     holes: Vec<[f64; 2]>,
-}
-
-#[derive(serde::Deserialize)]
-struct CameraJson {
-    width: u32,
-    height: u32,
-    fx: f64,
-    fy: f64,
-    cx: f64,
-    cy: f64,
-    distortion: [f64; 5],
 }
 
 #[test]
@@ -40,7 +29,7 @@ fn the_built_in_2x2_finds_a_real_outlet_it_never_saw() {
     let mut found = Vec::new();
     for view in &views {
         let image = image::open(format!("{dir}/{}", view.image)).expect("view").to_rgb8();
-        let c = &view.camera;
+        let c = view.camera;
         let camera = CameraModel::new(c.width, c.height, [c.fx, c.fy, c.cx, c.cy], c.distortion).expect("camera");
         let Some(detection) = detector.detect(&image, Some(&camera)).detection else { continue };
         for (k, (hole, truth)) in detection.holes.iter().zip(&view.holes).enumerate() {
