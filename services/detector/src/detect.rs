@@ -88,6 +88,11 @@ pub struct DetectorParams {
     /// from the nominal geometry (mm, per axis): on the Willow photographs the
     /// labelled holes leave 0.48-0.60 mm RMS from the contract's geometry.
     pub predicted_sigma_mm: f64,
+    /// When fewer holes than the hashing's minimum refine onto one plane from its
+    /// homography, but at least this many do, the others are looked for once
+    /// more where those put them (as faint holes are), and the outlet stands
+    /// only if the hashing's minimum is then reached on one plane.
+    pub min_holes_to_look_again: usize,
 }
 
 impl Default for DetectorParams {
@@ -112,6 +117,7 @@ impl Default for DetectorParams {
             full_after_coarse_below_pitch_px: 12.0,
             min_fitted_for_prediction: 5,
             predicted_sigma_mm: 0.5,
+            min_holes_to_look_again: 6,
         }
     }
 }
@@ -706,7 +712,11 @@ impl Detector {
         // Pixels per mm along the outlet's least foreshortened direction.
         let scale = local_jacobian(homography, lens, &centroid(&model)).ok_or_else(degenerate)?.singular_values().max();
         let tolerance = self.params.max_plane_px.max(self.params.max_plane_mm * scale);
-        let h = plane_fit(&model, &mut refined, lens, tolerance, min_holes)?;
+        // Too few holes on one plane yet may be the hashing's homography, made
+        // from a few candidates' centres, guessing the far holes too far off for
+        // their outlines (blur, a real outlet a little off the nominal one): with
+        // enough of them, the rest are looked for where the fitted holes put them.
+        let h = plane_fit(&model, &mut refined, lens, tolerance, min_holes.min(self.params.min_holes_to_look_again))?;
         // A hole not found (faint: washed out, in shadow; or its first guess too
         // far off) is looked for once more where the seen holes' homography puts
         // it, with less contrast; it counts only if it lands on that plane too.
@@ -720,6 +730,7 @@ impl Detector {
             let Some(q) = apply(&h, t) else { continue };
             let Some(jacobian) = local_jacobian(&h, lens, t) else { continue };
             let moved = refine_hole(grey, lens.distort(q), &jacobian, self.outlines[i], &faint);
+            tracing::trace!(hole = i, at = ?lens.distort(q), fitted = ?moved.map(|f| f.centre), "looked for again");
             match moved.map(|fit| (fit, (q - lens.undistort(fit.centre)).norm())) {
                 Some((fit, d)) if d <= tolerance => {
                     tracing::debug!(hole = i, "faint hole fitted where the other holes put it");
@@ -738,7 +749,12 @@ impl Detector {
         }
         // The faint holes join the fit and are checked by it (a faint fit off the
         // plane is dropped); any centre predicted below comes from this fit.
-        let h = if faint_found { plane_fit(&model, &mut refined, lens, tolerance, min_holes)? } else { h };
+        let seen = refined.iter().flatten().count();
+        let h = if faint_found || seen < min_holes {
+            plane_fit(&model, &mut refined, lens, tolerance, min_holes)?
+        } else {
+            h
+        };
         // A fitted hole's sigma is at least what the other holes say of it: its
         // outline fit measures the image noise, not the fit's bias (a T-slot's
         // branch, a blurred edge, a worn opening), which shows as the hole's
