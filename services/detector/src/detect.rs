@@ -240,6 +240,8 @@ struct Hypothesis {
     transform: Matrix3<f64>,
     guesses: Vec<Option<Point2<f64>>>,
     score: usize,
+    /// Why verification refused it.
+    why: String,
 }
 
 /// A template ready to detect with.
@@ -640,9 +642,16 @@ impl Detector {
         let t = Instant::now();
         let guesses: Vec<Option<Point2<f64>>> =
             m.assignment.iter().map(|a| a.and_then(|k| holes.get(k).map(|(c, _)| c.centre))).collect();
+        // A later look with more candidates often finds the same reading again:
+        // verification would refuse it again, for the same reason.
+        let same = |h: &&Hypothesis| h.transform == m.transform && h.guesses == guesses && h.score == m.score;
+        if let Some(h) = refused.iter().find(same) {
+            tracing::debug!(reason = %h.why, "the same reading as one refused before");
+            return (None, Some(h.why.clone()));
+        }
         let result = self.refine_either(grey, lens, &m.transform, &guesses, m.score);
-        if result.is_err() {
-            refused.push(Hypothesis { transform: m.transform, guesses, score: m.score });
+        if let Err(why) = &result {
+            refused.push(Hypothesis { transform: m.transform, guesses, score: m.score, why: why.clone() });
         }
         times.refine += ms_since(t);
         match result {
