@@ -57,7 +57,12 @@ pub struct DetectorParams {
     /// From this relative darkness on, the ground holes alone decide the half
     /// turn (on the Willow photographs and their views: 0.35 or more in nine of
     /// ten readings); the slot outlines then only veto
-    /// ([`VerifyParams::max_identity_contradiction`]).
+    /// ([`VerifyParams::max_identity_contradiction`]). 0.15 (0.2 until session
+    /// 16): a 2x2 in a specular highlight 60 cm from a VGA camera shows its
+    /// grounds 0.16 darker than the half-turned places (a face near 240 leaves
+    /// little room), and its 9 px slots cannot tell neutral from hot. A
+    /// half-turned reading puts its grounds on bare face, brighter than the real
+    /// ones: its contrast is below zero, far from either bound.
     pub ground_decides: f64,
     /// When nothing is found in an image whose larger side is at least this
     /// (pixels), look again at half the resolution, and so on down the pyramid:
@@ -111,7 +116,7 @@ impl Default for DetectorParams {
             third_look_spread: 1,
             swap_look_margin: 0.1,
             ground_contrast: 0.05,
-            ground_decides: 0.2,
+            ground_decides: 0.15,
             pyramid_min_px: 640,
             coarse_first_px: 1280,
             full_after_coarse_below_pitch_px: 12.0,
