@@ -7,7 +7,7 @@
 //! it finds them, every hole where the labels put it.
 
 use nalgebra::Point2;
-use outlet_detector::detect::{Detector, DetectorParams};
+use outlet_detector::detect::{Detection, Detector, DetectorParams};
 use outlet_protocol::CameraModel;
 
 #[derive(serde::Deserialize)]
@@ -18,27 +18,42 @@ struct View {
     holes: Vec<[f64; 2]>,
 }
 
+const DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/willow-near-head-on");
+
+/// A JSON file of the views' folder.
+fn read<T: serde::de::DeserializeOwned>(file: &str) -> T {
+    serde_json::from_str(&std::fs::read_to_string(format!("{DIR}/{file}")).expect(file)).expect("json")
+}
+
+/// The view's image, and its camera checked as any caller's is.
+fn image_and_camera(view: &View) -> (image::RgbImage, CameraModel) {
+    let image = image::open(format!("{DIR}/{}", view.image)).expect("view").to_rgb8();
+    let c = view.camera;
+    let camera = CameraModel::new(c.width, c.height, [c.fx, c.fy, c.cx, c.cy], c.distortion).expect("camera");
+    (image, camera)
+}
+
+/// Every hole where the labels put it: as in the detector's Willow tests, the
+/// labels carry their own spread (3 px on the photograph); beyond 5 px a hole
+/// is wrong unless its own sigma says it may be that far.
+fn assert_on_labels(detection: &Detection, view: &View) {
+    for (k, (hole, truth)) in detection.holes.iter().zip(&view.holes).enumerate() {
+        let e = (hole.pixel - Point2::new(truth[0], truth[1])).norm();
+        assert!(e < 5.0 || e < 3.0 * hole.sigma_px, "{}: hole {k} {e:.2} px off", view.image);
+    }
+}
+
 #[test]
 fn the_built_in_2x2_finds_a_real_outlet_it_never_saw() {
-    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/willow-near-head-on");
-    let views: Vec<View> =
-        serde_json::from_str(&std::fs::read_to_string(format!("{dir}/views.json")).expect("views.json")).expect("json");
+    let views: Vec<View> = read("views.json");
     assert_eq!(views.len(), 4);
     let template = outlet::templates::builtin("2x2").expect("built-in template");
     let detector = Detector::new(template, DetectorParams::default());
     let mut found = Vec::new();
     for view in &views {
-        let image = image::open(format!("{dir}/{}", view.image)).expect("view").to_rgb8();
-        let c = view.camera;
-        let camera = CameraModel::new(c.width, c.height, [c.fx, c.fy, c.cx, c.cy], c.distortion).expect("camera");
+        let (image, camera) = image_and_camera(view);
         let Some(detection) = detector.detect(&image, Some(&camera)).detection else { continue };
-        for (k, (hole, truth)) in detection.holes.iter().zip(&view.holes).enumerate() {
-            let e = (hole.pixel - Point2::new(truth[0], truth[1])).norm();
-            // As in the detector's Willow tests: the labels carry their own
-            // spread (3 px on the photograph); beyond 5 px a hole is wrong
-            // unless its own sigma says it may be that far.
-            assert!(e < 5.0 || e < 3.0 * hole.sigma_px, "{}: hole {k} {e:.2} px off", view.image);
-        }
+        assert_on_labels(&detection, view);
         found.push(view.image.as_str());
     }
     // All four today; one may fall to the plane check's edge.
@@ -52,17 +67,12 @@ fn the_built_in_2x2_finds_a_real_outlet_it_never_saw() {
 /// where the refined holes put them, they are found, and the outlet with them.
 #[test]
 fn holes_the_first_homography_misses_are_looked_for_where_the_refined_holes_put_them() {
-    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/willow-near-head-on");
-    let view: View =
-        serde_json::from_str(&std::fs::read_to_string(format!("{dir}/look_again.json")).expect("json")).expect("view");
-    let image = image::open(format!("{dir}/{}", view.image)).expect("view").to_rgb8();
+    let view: View = read("look_again.json");
+    let (image, camera) = image_and_camera(&view);
     let template = outlet::templates::builtin("2x2").expect("built-in template");
-    let detect = |params: DetectorParams| Detector::new(template.clone(), params).detect(&image, Some(&view.camera));
+    let detect = |params: DetectorParams| Detector::new(template.clone(), params).detect(&image, Some(&camera));
     let detection = detect(DetectorParams::default()).detection.expect("found once looked for again");
-    for (k, (hole, truth)) in detection.holes.iter().zip(&view.holes).enumerate() {
-        let e = (hole.pixel - Point2::new(truth[0], truth[1])).norm();
-        assert!(e < 5.0 || e < 3.0 * hole.sigma_px, "hole {k} {e:.2} px off");
-    }
+    assert_on_labels(&detection, &view);
     let never_again = DetectorParams { min_holes_to_look_again: 12, ..DetectorParams::default() };
     assert!(detect(never_again).detection.is_none(), "found without looking again: the test no longer shows it");
 }
