@@ -6,7 +6,7 @@ use crate::camera::CameraModel;
 use iceoryx2::prelude::ZeroCopySend;
 
 /// Version of the types in this module; bumped on any change of their layout.
-pub const SCHEMA_VERSION: u32 = 2;
+pub const SCHEMA_VERSION: u32 = 3;
 
 /// Service names, one place for every process.
 pub mod service {
@@ -219,6 +219,11 @@ pub struct HoleMsg {
     /// Standard deviation of `pixel` per axis (pixels), from the sub-pixel fit's own
     /// residuals (with a floor).
     pub sigma_px: f64,
+    /// How `sigma_px`'s variance divides among the image axes, `[xx, xy, yy]` of
+    /// a symmetric matrix with trace 2: the pixel covariance is `sigma_px²` times
+    /// it (a slot's centre is surer across it than along it). All zero where
+    /// not given: the same on both axes.
+    pub shape: [f64; 3],
 }
 
 /// The outlet found in a frame, or none (`hole_count` 0).

@@ -161,6 +161,17 @@ pub struct DetectedHole {
     /// Standard deviation of `pixel` per axis (pixels), from the outline fit's
     /// residuals ([`crate::refine::Refined::sigma_px`]).
     pub sigma_px: f64,
+    /// How `sigma_px`'s variance divides among the image axes (trace 2,
+    /// [`crate::refine::Refined::shape`]): the covariance of `pixel` is
+    /// [`Self::covariance_px`].
+    pub shape: Matrix2<f64>,
+}
+
+impl DetectedHole {
+    /// The covariance of `pixel` (pixels²).
+    pub fn covariance_px(&self) -> Matrix2<f64> {
+        self.shape * self.sigma_px.powi(2)
+    }
 }
 
 /// A found outlet.
@@ -749,7 +760,7 @@ impl Detector {
                 Some((fit, d)) if d <= tolerance => {
                     tracing::debug!(hole = i, "faint hole fitted where the other holes put it");
                     refined[i] = Some(fit.centre);
-                    fits[i] = Some(Refined { sigma_px: fit.sigma_px.max(tolerance / 2.0), ..fit });
+                    fits[i] = Some(fit.with_sigma_at_least(tolerance / 2.0));
                     jacobians[i] = jacobian;
                     faint_found = true;
                 }
@@ -775,7 +786,7 @@ impl Detector {
         // distance from where the rest of the outlet puts it.
         for (i, spread) in agreement_sigmas(&model, &refined, lens).into_iter().enumerate() {
             if let (Some(spread), Some(fit)) = (spread, fits[i].as_mut()) {
-                fit.sigma_px = fit.sigma_px.max(spread);
+                *fit = fit.with_sigma_at_least(spread);
             }
         }
         // No hole is much surer than the outlet's typical one: the holes share
@@ -789,7 +800,7 @@ impl Detector {
             let median = *fitted_sigmas.select_nth_unstable_by(mid, f64::total_cmp).1;
             for (fit, r) in fits.iter_mut().zip(&refined) {
                 if let (Some(fit), Some(_)) = (fit.as_mut(), r) {
-                    fit.sigma_px = fit.sigma_px.max(MIN_SIGMA_OF_MEDIAN * median);
+                    *fit = fit.with_sigma_at_least(MIN_SIGMA_OF_MEDIAN * median);
                 }
             }
         }
@@ -822,7 +833,8 @@ impl Detector {
             tracing::debug!(hole = i, sigma_px, "hole seen where the fitted holes put it");
             predicted_only[i] = true;
             refined[i] = Some(predicted);
-            fits[i] = Some(Refined { sigma_px, ..fit });
+            // Mostly the carried and nominal errors, the same on both axes.
+            fits[i] = Some(Refined { sigma_px, shape: Matrix2::identity(), ..fit });
             jacobians[i] = jacobian;
         }
         // Every hole must have been seen: a hole predicted from the others may lie
@@ -848,7 +860,14 @@ impl Detector {
             // A centre taken from the homography is weaker evidence than a fitted one.
             let score = hole_score(&fit, offset, tolerance) * if predicted_only[i] { 0.5 } else { 1.0 };
             let refined = !predicted_only[i];
-            holes.push(DetectedHole { kind: hole.kind, pixel: *pixel, refined, score, sigma_px: fit.sigma_px });
+            holes.push(DetectedHole {
+                kind: hole.kind,
+                pixel: *pixel,
+                refined,
+                score,
+                sigma_px: fit.sigma_px,
+                shape: fit.shape,
+            });
         }
         // Never a mirror image: the camera sees the outlet's front.
         let det = local_jacobian(&h, lens, &centroid(&model)).ok_or_else(degenerate)?.determinant();

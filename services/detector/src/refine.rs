@@ -197,6 +197,53 @@ pub struct Refined {
     /// widths, the one whose model leaves the least residual at the centre (blur
     /// and defocus widen it). 0 where it was not measured.
     pub edge_px: f64,
+    /// How the centre's variance divides among the image axes: symmetric, trace
+    /// 2 (the identity where it is the same on both), so that the covariance of
+    /// `centre` is `sigma_px² · shape` ([`Self::covariance_px`]). A slot tells
+    /// its centre across its length from two long edges and along it from two
+    /// short ends: on rendered scenes the error along a slot was 1.5 times the
+    /// error across it, and one sigma for both axes made the slots' error bars
+    /// too wide across and too narrow along.
+    pub shape: Matrix2<f64>,
+}
+
+impl Refined {
+    /// The covariance of `centre` (pixels²).
+    pub fn covariance_px(&self) -> Matrix2<f64> {
+        self.shape * self.sigma_px.powi(2)
+    }
+
+    /// The same fit with `sigma_px` at least `sigma`: what is added is error the
+    /// fit did not see (the hole's disagreement with the others, a floor), the
+    /// same on both axes.
+    pub fn with_sigma_at_least(self, sigma: f64) -> Self {
+        let raised = self.sigma_px.max(sigma);
+        if raised == self.sigma_px {
+            return self;
+        }
+        let added = raised.powi(2) - self.sigma_px.powi(2);
+        let shape = shape_of(&(self.covariance_px() + Matrix2::identity() * added));
+        Self { sigma_px: raised, shape, ..self }
+    }
+}
+
+/// The least eigenvalue of a [`Refined::shape`] (the largest is then at most
+/// 2 less it): a fit that claims one axis nearly exact is not believed.
+const MIN_SHAPE_EIGENVALUE: f64 = 0.2;
+
+/// A covariance's shape: scaled to trace 2, its eigenvalues kept within
+/// [`MIN_SHAPE_EIGENVALUE`] and 2 less it; the identity where it is not
+/// finite or not positive.
+pub fn shape_of(covariance: &Matrix2<f64>) -> Matrix2<f64> {
+    let c = (covariance + covariance.transpose()) * 0.5;
+    let trace = c.trace();
+    if !(trace > 0.0 && trace.is_finite()) {
+        return Matrix2::identity();
+    }
+    let eig = (c * (2.0 / trace)).symmetric_eigen();
+    let values = eig.eigenvalues.map(|v| v.clamp(MIN_SHAPE_EIGENVALUE, 2.0 - MIN_SHAPE_EIGENVALUE));
+    let shape = eig.eigenvectors * Matrix2::from_diagonal(&values) * eig.eigenvectors.transpose();
+    if shape.iter().all(|v| v.is_finite()) { shape * (2.0 / shape.trace()) } else { Matrix2::identity() }
 }
 
 /// Fits one hole's outline around `guess`. `mm_to_px` maps outlet-plane mm offsets
@@ -223,8 +270,11 @@ pub fn refine_hole(
     }
     let px_per_mm = mm_to_px.determinant().abs().sqrt();
     let outline = params.outline_sigma_mm * px_per_mm;
-    let sigma_px = (fine.sigma_px * edge_sigma_factor(fine.edge_px)).hypot(outline).max(params.min_sigma_px);
-    Some(Refined { sigma_px, ..fine })
+    let fitted = fine.sigma_px * edge_sigma_factor(fine.edge_px);
+    let sigma_px = fitted.hypot(outline).max(params.min_sigma_px);
+    // The outline model's error is the same on both axes.
+    let shape = shape_of(&(fine.shape * fitted.powi(2) + Matrix2::identity() * outline.powi(2)));
+    Some(Refined { sigma_px, shape, ..fine })
 }
 
 /// How much more a centre errs, per axis, where the outline's edge shows
@@ -547,6 +597,7 @@ fn fit_with(
     }
     let p = solve(cov, weights, r)?;
     let rms = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
+    let mut shape = Matrix2::identity();
     let sigma_px = if sigma {
         // The offset's covariance from the normal equations at the solution, scaled
         // by the residual variance (6 parameters: two offsets, four linear).
@@ -563,6 +614,9 @@ fn fit_with(
         // Weights below 1 count as fewer pixels: the variance per unit weight.
         let variance = wrr / dof * (pixels.len() as f64 / wsum.max(1e-9));
         let covariance = jtj.try_inverse().map(|inv| inv * variance);
+        if let Some(c) = covariance {
+            shape = shape_of(&c);
+        }
         covariance
             .map(|c| ((c[(0, 0)] + c[(1, 1)]) / 2.0).max(0.0).sqrt() * params.sigma_scale)
             .filter(|s| s.is_finite())
@@ -613,5 +667,6 @@ fn fit_with(
         pixels: pixels.len(),
         total_ss: total,
         edge_px,
+        shape,
     })
 }

@@ -157,6 +157,7 @@ mod tests {
             pixels: 100,
             total_ss: 1e4,
             edge_px: 0.0,
+            shape: nalgebra::Matrix2::identity(),
         };
         assert!((hole_score(&fit, 0.0, 1.2) - 0.8).abs() < 1e-12);
         assert!((hole_score(&fit, 0.6, 1.2) - 0.6).abs() < 1e-12);

@@ -299,6 +299,8 @@ fn run_one(
                     [c[(2, 0)], c[(2, 1)], c[(2, 2)]],
                 ]
             });
+            let c = h.covariance_px();
+            let covariance_px = [[c[(0, 0)], c[(0, 1)]], [c[(1, 0)], c[(1, 1)]]];
             json!({
                 "kind": h.kind.as_str(),
                 "pixel": [h.pixel.x, h.pixel.y],
@@ -306,6 +308,7 @@ fn run_one(
                 "covariance_m2": covariance,
                 "score": h.score,
                 "sigma_px": h.sigma_px,
+                "covariance_px": covariance_px,
             })
         })
         .collect();

@@ -83,6 +83,8 @@ pub struct DetectedHoles {
     pub model_mm: Vec<nalgebra::Point2<f64>>,
     pub pixels: Vec<nalgebra::Point2<f64>>,
     pub sigmas_px: Vec<f64>,
+    /// Each hole's pixel covariance shape (trace 2).
+    pub shapes: Vec<nalgebra::Matrix2<f64>>,
 }
 
 impl DetectedHoles {
@@ -91,6 +93,7 @@ impl DetectedHoles {
             model_mm: geometry.holes.iter().map(|h| h.position()).collect(),
             pixels: detection.holes.iter().map(|h| h.pixel).collect(),
             sigmas_px: detection.holes.iter().map(|h| h.sigma_px).collect(),
+            shapes: detection.holes.iter().map(|h| h.shape).collect(),
         }
     }
 
@@ -106,6 +109,7 @@ impl DetectedHoles {
             camera,
             pixel_sigma,
             pixel_sigmas: Some(&self.sigmas_px),
+            pixel_shapes: Some(&self.shapes),
         }
     }
 }

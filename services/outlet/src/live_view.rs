@@ -476,7 +476,14 @@ mod tests {
 
     #[test]
     fn annotations_circle_each_hole_at_its_pixel() {
-        let hole = |kind, x, sigma| HoleMsg { kind, refined: 1, pixel: [x, 100.0], score: 1.0, sigma_px: sigma };
+        let hole = |kind, x, sigma| HoleMsg {
+            kind,
+            refined: 1,
+            pixel: [x, 100.0],
+            score: 1.0,
+            sigma_px: sigma,
+            shape: [0.0; 3],
+        };
         let mut d = DetectionMsg {
             schema_version: SCHEMA_VERSION,
             hole_count: 2,

@@ -145,6 +145,7 @@ pub struct Inputs {
     pub model_mm: Vec<Point2<f64>>,
     pub pixels: Vec<Point2<f64>>,
     pub pixel_sigmas: Vec<f64>,
+    pub pixel_shapes: Vec<nalgebra::Matrix2<f64>>,
     pub truth: Vec<Point3<f64>>,
 }
 
@@ -187,6 +188,7 @@ pub fn evaluate_frame(
         model_mm: geometry.holes.iter().map(|h| h.position()).collect(),
         pixels: detection.holes.iter().map(|h| h.pixel).collect(),
         pixel_sigmas: detection.holes.iter().map(|h| h.sigma_px).collect(),
+        pixel_shapes: detection.holes.iter().map(|h| h.shape).collect(),
         truth,
     };
     let obs = Observations {
@@ -195,6 +197,7 @@ pub fn evaluate_frame(
         camera,
         pixel_sigma,
         pixel_sigmas: (!inputs.pixel_sigmas.is_empty()).then_some(inputs.pixel_sigmas.as_slice()),
+        pixel_shapes: (!inputs.pixel_shapes.is_empty()).then_some(inputs.pixel_shapes.as_slice()),
     };
     let view = frame.truth.view;
     let mut groups = vec!["all"];
@@ -222,6 +225,8 @@ pub fn evaluate_frame(
         "distance_m": view.map(|v| v.distance_m),
         "mean_error_px": mean_error_px,
         "sigma_px": inputs.pixel_sigmas,
+        "pixels": inputs.pixels.iter().map(|p| [p.x, p.y]).collect::<Vec<_>>(),
+        "shapes": inputs.pixel_shapes.iter().map(|s| [s[(0, 0)], s[(0, 1)], s[(1, 1)]]).collect::<Vec<_>>(),
         "errors_xy_px": detection.holes.iter().zip(&frame.truth.holes)
             .map(|(h, t)| [h.pixel.x - t.pixel[0], h.pixel.y - t.pixel[1]]).collect::<Vec<_>>(),
         "wall_normal": frame.truth.wall_plane.normal,

@@ -182,6 +182,7 @@ pub fn detection_json(d: &DetectionMsg) -> Value {
             "pixel": h.pixel,
             "score": h.score,
             "sigma_px": h.sigma_px,
+            "shape": h.shape,
         })).collect::<Vec<_>>(),
     })
 }
@@ -278,7 +279,8 @@ pub mod schema {
                     "intrinsics": numbers(4), "distortion": numbers(5)}},
                 "holes": {"type": "array", "items": {"type": "object", "properties": {
                     "kind": {"enum": ["power", "ground", "unknown"]}, "refined": {"type": "boolean"},
-                    "pixel": numbers(2), "score": {"type": "number"}, "sigma_px": {"type": "number"}}}},
+                    "pixel": numbers(2), "score": {"type": "number"}, "sigma_px": {"type": "number"},
+                    "shape": numbers(3)}}},
             }),
         )
     }

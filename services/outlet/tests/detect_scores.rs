@@ -1,5 +1,6 @@
 //! `outlet detect --json` gives every hole its verification evidence (`score`)
-//! and its pixel standard deviation (`sigma_px`) beside the CONTRACT keys.
+//! and its pixel standard deviation (`sigma_px`) and covariance (`covariance_px`)
+//! beside the CONTRACT keys.
 
 use serde_json::Value;
 use std::process::Command;
@@ -49,5 +50,11 @@ fn detect_json_gives_each_hole_its_score_and_sigma() {
         let sigma = h["sigma_px"].as_f64().expect("sigma_px");
         assert!(score > 0.0 && score <= 1.0, "score {score}");
         assert!(sigma > 0.0 && sigma < 1.0, "sigma_px {sigma}");
+        // The 2x2 pixel covariance: symmetric, positive definite, its mean
+        // variance sigma_px².
+        let c: Vec<Vec<f64>> = serde_json::from_value(h["covariance_px"].clone()).expect("covariance_px 2x2");
+        assert_eq!((c.len(), c[0].len(), c[1].len()), (2, 2, 2), "{c:?}");
+        assert!((c[0][1] - c[1][0]).abs() < 1e-12 && c[0][0] > 0.0 && c[0][0] * c[1][1] > c[0][1].powi(2), "{c:?}");
+        assert!(((c[0][0] + c[1][1]) / 2.0 - sigma * sigma).abs() < 1e-9 * sigma * sigma, "{c:?} vs {sigma}");
     }
 }

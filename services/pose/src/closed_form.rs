@@ -134,27 +134,28 @@ pub(crate) fn covariances(rays: &Rays, n: &Unit<Vector3<f64>>, sigma_rad: f64) -
     total
 }
 
-/// Adds to each hole's covariance what a shift of every pixel by the same
-/// unknown amount (`sigma_px` on each image axis) does to the closed form.
-pub(crate) fn add_common_shift(total: &mut [Matrix3<f64>], rays: &Rays, n: &Unit<Vector3<f64>>, sigma_px: f64) {
-    if sigma_px <= 0.0 {
-        return;
-    }
+/// Adds to each hole's covariance what errors common to every hole do to the
+/// closed form: each mode is one unit draw, the move of each hole's normalised
+/// coordinates (see [`crate::robust::common_modes`]).
+pub(crate) fn add_common_modes(
+    total: &mut [Matrix3<f64>],
+    rays: &Rays,
+    n: &Unit<Vector3<f64>>,
+    modes: &[Vec<Vector2<f64>>],
+) {
     let holes = |xy: &[Vector2<f64>]| -> Option<Vec<Vector3<f64>>> {
         let pose = closed_form_normal(&rays.model, xy, n)?;
         Some(rays.model.iter().map(|p| (pose * p).coords).collect())
     };
-    let h = 1e-3; // pixels
-    for axis in 0..2 {
-        let mut shift = Vector2::zeros();
-        shift[axis] = h;
-        let moved = |sign: f64| -> Vec<Vector2<f64>> {
-            rays.xy.iter().zip(&rays.px_to_xy).map(|(xy, j)| xy + j * shift * sign).collect()
-        };
+    // A small share of the draw: the closed form is differentiated numerically.
+    let h = 1e-3;
+    for mode in modes {
+        let moved =
+            |sign: f64| -> Vec<Vector2<f64>> { rays.xy.iter().zip(mode).map(|(xy, d)| xy + d * (h * sign)).collect() };
         if let (Some(p), Some(q)) = (holes(&moved(1.0)), holes(&moved(-1.0))) {
             for (t, (a, b)) in total.iter_mut().zip(p.iter().zip(&q)) {
                 let c = (a - b) / (2.0 * h);
-                *t += c * c.transpose() * sigma_px * sigma_px;
+                *t += c * c.transpose();
             }
         }
     }

@@ -20,7 +20,7 @@ mod lm;
 mod mono;
 mod robust;
 
-pub use robust::{COMMON_REFERENCE_PX_PER_MM, COMMON_SIGMA_FRACTION, OUTLIER_CHI2};
+pub use robust::{COMMON_REFERENCE_PX_PER_MM, COMMON_SCALE_SHARE, COMMON_SIGMA_FRACTION, OUTLIER_CHI2};
 
 pub use closed_form::closed_form_normal;
 
@@ -103,6 +103,12 @@ pub struct Observations<'a> {
     /// sub-pixel fit measured it; an entry that is missing, not finite or not
     /// positive falls back to `pixel_sigma`.
     pub pixel_sigmas: Option<&'a [f64]>,
+    /// How each hole's pixel variance divides among the image axes: symmetric,
+    /// trace 2, the identity for the same on both (the detector's
+    /// `DetectedHole::shape`); hole k's pixel covariance is `sigma_of(k)² ·
+    /// shape`. A missing or unusable entry (not finite, not positive definite)
+    /// is the identity.
+    pub pixel_shapes: Option<&'a [Matrix2<f64>]>,
 }
 
 impl Observations<'_> {
@@ -112,6 +118,16 @@ impl Observations<'_> {
             .and_then(|s| s.get(index).copied())
             .filter(|s| s.is_finite() && *s > 0.0)
             .unwrap_or(self.pixel_sigma)
+    }
+
+    /// The pixel covariance's shape of hole `index` (trace 2).
+    pub fn shape_of(&self, index: usize) -> Matrix2<f64> {
+        self.pixel_shapes
+            .and_then(|s| s.get(index).copied())
+            .map(|s| (s + s.transpose()) * 0.5)
+            .filter(|s| s.iter().all(|v| v.is_finite()) && s.trace() > 0.0 && s.determinant() > 0.0 && s[(0, 0)] > 0.0)
+            .map(|s| s * (2.0 / s.trace()))
+            .unwrap_or_else(Matrix2::identity)
     }
 }
 
@@ -224,9 +240,12 @@ pub(crate) fn rays(obs: &Observations, needed: usize, mode: &'static str) -> Res
         let jk = Matrix2::new(cam.fx, 0.0, 0.0, cam.fy) * jd;
         let inv = jk.try_inverse().ok_or(PoseError::NonFinite { index })?;
         let sigma = obs.sigma_of(index);
-        let cov = inv * inv.transpose() * sigma.powi(2);
-        // Whitening W with Wᵀ W = cov⁻¹: W = σ⁻¹ · jk.
-        out.whiten.push(jk / sigma);
+        // The pixel covariance σ² S = σ² L Lᵀ; in normalised coordinates
+        // inv σ² S invᵀ, whitened by W = σ⁻¹ L⁻¹ jk (Wᵀ W = cov⁻¹).
+        let shape = obs.shape_of(index);
+        let l_inv = shape.cholesky().and_then(|c| c.l().try_inverse()).unwrap_or_else(Matrix2::identity);
+        let cov = inv * shape * inv.transpose() * sigma.powi(2);
+        out.whiten.push(l_inv * jk / sigma);
         out.covariance.push(cov);
         out.sigma.push(sigma);
         out.px_to_xy.push(inv);
@@ -297,10 +316,11 @@ pub(crate) fn holes_and_rms(
     (holes, rms)
 }
 
-/// The fit with the covariance of a pixel shift common to every hole added.
-fn with_common_shift(fit: lm::Fit, rays: &Rays, kept: &[bool], prior: Option<&lm::Prior>) -> lm::Fit {
-    let sigma = robust::common_sigma(rays, kept);
-    match lm::common_shift_covariance(rays, &fit.pose, prior, sigma) {
+/// The fit with the covariance of errors common to every hole added (a pixel
+/// shift, a scale).
+fn with_common_errors(fit: lm::Fit, rays: &Rays, kept: &[bool], prior: Option<&lm::Prior>) -> lm::Fit {
+    let modes = robust::common_modes(rays, kept);
+    match lm::common_covariance(rays, &fit.pose, prior, &modes) {
         Some(c) => lm::Fit { covariance: fit.covariance + c, ..fit },
         None => fit,
     }
@@ -345,10 +365,10 @@ pub fn solve_normal(obs: &Observations, normal: &Vector3<f64>, normal_sigma_rad:
     let factor = robust::variance_factor(&rays, &fit.pose, &kept, 4);
     let covariances = if kept == all {
         let mut c = closed_form::covariances(&rays, &n, sigma);
-        closed_form::add_common_shift(&mut c, &rays, &n, robust::common_sigma(&rays, &kept));
+        closed_form::add_common_modes(&mut c, &rays, &n, &robust::common_modes(&rays, &kept));
         c
     } else {
-        lm::hole_covariances(&with_common_shift(fit.clone(), &rays, &kept, prior.as_ref()), &rays.model)
+        lm::hole_covariances(&with_common_errors(fit.clone(), &rays, &kept, prior.as_ref()), &rays.model)
     };
     let (holes_cam_m, rms_px) = holes_and_rms(&fit.pose, &rays, obs.camera, obs.pixels, &kept);
     if !holes_cam_m.iter().all(in_front) {
@@ -412,7 +432,7 @@ pub fn solve_plane(obs: &Observations, plane: &PlaneMeasurement) -> Result<Outle
     }
     // The plane fixes three of the six parameters.
     let factor = robust::variance_factor(&rays, &fit.pose, &kept, 3);
-    let fit = with_common_shift(fit, &rays, &kept, Some(&prior));
+    let fit = with_common_errors(fit, &rays, &kept, Some(&prior));
     let covariances = scaled(lm::hole_covariances(&fit, &rays.model), factor);
     Ok(OutletPose {
         pose: fit.pose,
@@ -469,8 +489,8 @@ pub fn solve_mono(obs: &Observations) -> Result<OutletPose, PoseError> {
         return Err(PoseError::BehindCamera);
     }
     let factor = robust::variance_factor(&rays, &fit.pose, &kept, 6);
-    let fit = with_common_shift(fit, &rays, &kept, None);
-    let covariances = scaled(lm::hole_covariances(&fit, &rays.model), factor);
+    let fit = with_common_errors(fit, &rays, &kept, None);
+    let mut covariances = scaled(lm::hole_covariances(&fit, &rays.model), factor);
     if let Some(other) = other {
         let other_holes: Vec<Point3<f64>> = rays.model.iter().map(|p| other.fit.pose * p).collect();
         let other_in_front = other_holes.iter().all(in_front);
@@ -481,6 +501,17 @@ pub fn solve_mono(obs: &Observations) -> Result<OutletPose, PoseError> {
         });
         if other_in_front && apart && (other.cost - best_cost) / factor < MONO_AMBIGUITY_LLR {
             return Err(PoseError::Ambiguous { best_cost, other_cost: other.cost });
+        }
+        if other_in_front {
+            // The pixels' likelihood has a second peak: the holes are there with
+            // the odds exp(-Δ/2) against the chosen pose, and the covariance
+            // about the chosen pose carries that share of the other.
+            let delta = ((other.cost - best_cost) / factor).max(0.0);
+            let w = 1.0 / (1.0 + (delta / 2.0).exp());
+            for ((c, a), b) in covariances.iter_mut().zip(&holes_cam_m).zip(&other_holes) {
+                let d = b - a;
+                *c += d * d.transpose() * w;
+            }
         }
     }
     Ok(OutletPose {

@@ -182,29 +182,30 @@ pub(crate) fn hole_costs(rays: &Rays, pose: &Isometry3<f64>) -> Vec<f64> {
         .collect()
 }
 
-/// The covariance (pose parameters) that a shift of every pixel by the same
-/// unknown amount, `sigma_px` on each image axis, adds to a fit: the estimate
-/// moves by `-(Jᵀ J)⁻¹ Jᵀ δr`, where hole k's whitened residual moves by
-/// `c / σ_k` for a common pixel shift `c`.
-pub(crate) fn common_shift_covariance(
+/// The covariance (pose parameters) that errors common to every hole add to a
+/// fit. Each mode is one unit draw of such an error: the move of each hole's
+/// normalised coordinates (a common pixel shift, a common scale). The estimate
+/// moves by `(Jᵀ J)⁻¹ Jᵀ W δxy` for observations moved by `δxy`.
+pub(crate) fn common_covariance(
     rays: &Rays,
     pose: &Isometry3<f64>,
     prior: Option<&Prior>,
-    sigma_px: f64,
+    modes: &[Vec<nalgebra::Vector2<f64>>],
 ) -> Option<Matrix6<f64>> {
     let (res, jac) = linearise(rays, pose, prior)?;
     let (jtj, _, _) = normal_equations(&res, &jac);
     let inv = jtj.try_inverse()?;
-    let mut g = SMatrix::<f64, 6, 2>::zeros();
-    for (k, s) in rays.sigma.iter().enumerate() {
-        for axis in 0..2 {
-            // Row 2k + axis of the whitened residual moves by 1/σ_k per pixel on `axis`.
-            let row = jac.get(2 * k + axis)?;
-            let col = row.transpose() / *s;
-            let mut c = g.column_mut(axis);
-            c += col;
+    let mut total = Matrix6::zeros();
+    for mode in modes {
+        let mut g = Vector6::zeros();
+        for (k, (w, d)) in rays.whiten.iter().zip(mode).enumerate() {
+            let moved = w * d;
+            for axis in 0..2 {
+                g += jac.get(2 * k + axis)?.transpose() * moved[axis];
+            }
         }
+        let g = inv * g;
+        total += g * g.transpose();
     }
-    let g = inv * g;
-    Some(g * g.transpose() * sigma_px * sigma_px)
+    Some(total)
 }

@@ -107,7 +107,14 @@ fn solve(
     plane_covariance_scale: f64,
 ) -> Result<OutletPose, TestCaseError> {
     let cam = camera();
-    let obs = Observations { model_mm: m, pixels: px, camera: &cam, pixel_sigma: sigma_px, pixel_sigmas: None };
+    let obs = Observations {
+        model_mm: m,
+        pixels: px,
+        camera: &cam,
+        pixel_sigma: sigma_px,
+        pixel_sigmas: None,
+        pixel_shapes: None,
+    };
     let result = match solver {
         Solver::Normal => solve_normal(&obs, &(truth.rotation * Vector3::z()), 0.0),
         Solver::Plane => solve_plane(&obs, &wall(truth, plane_covariance_scale)),
@@ -178,11 +185,13 @@ proptest! {
 
     /// The predicted covariance is linear in the pixels' noise variance: sigma
     /// times k gives k² times every hole's covariance (plane mode: with the
-    /// plane's covariance also times k², since it is the other input).
+    /// plane's covariance also times k², since it is the other input). Not mono:
+    /// its covariance carries the mirror pose by the odds the pixels give it,
+    /// which noisier pixels raise.
     #[test]
     fn scaling_the_pixel_noise_scales_the_covariance_by_its_square(
         truth in outlet_pose(),
-        solver in solvers(),
+        solver in prop_oneof![Just(Solver::Normal), Just(Solver::Plane)],
         name in template(),
         sigma_px in 0.05..1.0f64,
         k in 0.1..10.0f64,

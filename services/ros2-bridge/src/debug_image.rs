@@ -341,7 +341,7 @@ mod tests {
     fn detection(p: &HolePosesMsg, pixels: &[Point2<f64>], sigma_px: f64) -> DetectionMsg {
         let mut holes = [HoleMsg::default(); MAX_HOLES];
         for (k, (h, px)) in holes.iter_mut().zip(pixels).enumerate() {
-            *h = HoleMsg { kind: p.kinds[k], refined: 1, pixel: [px.x, px.y], score: 0.9, sigma_px };
+            *h = HoleMsg { kind: p.kinds[k], refined: 1, pixel: [px.x, px.y], score: 0.9, sigma_px, shape: [0.0; 3] };
         }
         let c = camera();
         DetectionMsg {

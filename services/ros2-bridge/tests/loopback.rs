@@ -288,7 +288,14 @@ fn debug_image_of(poses: &HolePosesMsg) -> DebugImage {
     for (k, hole) in holes.iter_mut().enumerate().take(2) {
         let [x, y, z] = poses.positions_m[k];
         let pixel = camera.project(&nalgebra::Point3::new(x, y, z)).expect("in front");
-        *hole = HoleMsg { kind: poses.kinds[k], refined: 1, pixel: [pixel.x, pixel.y], score: 0.9, sigma_px: 0.3 };
+        *hole = HoleMsg {
+            kind: poses.kinds[k],
+            refined: 1,
+            pixel: [pixel.x, pixel.y],
+            score: 0.9,
+            sigma_px: 0.3,
+            shape: [0.0; 3],
+        };
     }
     let detection = DetectionMsg {
         schema_version: SCHEMA_VERSION,

@@ -75,7 +75,8 @@ fn recorded() -> Vec<u8> {
         height: 4,
         intrinsics: [300.0, 301.0, 2.5, 1.5],
         distortion: [0.0; 5],
-        holes: [HoleMsg { kind: 2, refined: 1, pixel: [3.0, 2.0], score: 0.9, sigma_px: 0.1 }; MAX_HOLES],
+        holes: [HoleMsg { kind: 2, refined: 1, pixel: [3.0, 2.0], score: 0.9, sigma_px: 0.1, shape: [0.0; 3] };
+            MAX_HOLES],
     };
     r.detection(&detection).expect("detection");
     r.heartbeat(&HeartbeatMsg::new("detector", 42, 7)).expect("heartbeat");

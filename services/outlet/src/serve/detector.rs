@@ -161,6 +161,7 @@ fn detection_msg(
                 pixel: [h.pixel.x, h.pixel.y],
                 score: h.score,
                 sigma_px: h.sigma_px,
+                shape: [h.shape[(0, 0)], h.shape[(0, 1)], h.shape[(1, 1)]],
             };
         }
     }

@@ -9,7 +9,7 @@ use super::{Output, Runtime, clear};
 use anyhow::Result;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
-use nalgebra::{Matrix3, Point2, Unit, Vector3};
+use nalgebra::{Matrix2, Matrix3, Point2, Unit, Vector3};
 use outlet::health::{Health, now_ns};
 use outlet_pose::{Mode, Observations, OutletPose, PlaneMeasurement, PoseError, solve_mono, solve_plane};
 use outlet_protocol::wire::{
@@ -166,12 +166,16 @@ fn solve(
     let pixels: Vec<Point2<f64>> = holes.iter().map(|h| Point2::new(h.pixel[0], h.pixel[1])).collect();
     // Each hole's own sigma from the detector's fit (the configured one where it has none).
     let sigmas: Vec<f64> = holes.iter().map(|h| h.sigma_px).collect();
+    // And its shape (a zero shape, not given, is read as the same on both axes).
+    let shapes: Vec<Matrix2<f64>> =
+        holes.iter().map(|h| Matrix2::new(h.shape[0], h.shape[1], h.shape[1], h.shape[2])).collect();
     let obs = Observations {
         model_mm: &model,
         pixels: &pixels,
         camera: &camera,
         pixel_sigma: config.pixel_sigma,
         pixel_sigmas: Some(&sigmas),
+        pixel_shapes: Some(&shapes),
     };
     let plane = recent
         .iter()
