@@ -422,6 +422,10 @@ thread_local! {
     static FIT_SCRATCH: std::cell::RefCell<FitScratch> = std::cell::RefCell::new(FitScratch::default());
 }
 
+/// Pixels of face an outline must keep inside the image beyond its own extent
+/// for a fit: the edge's ramp and a pixel of face to level it against.
+const EDGE_SPARE_PX: i64 = 3;
+
 #[allow(clippy::too_many_arguments)]
 fn fit_with(
     grey: &GrayImage,
@@ -444,18 +448,29 @@ fn fit_with(
     let ry = corners.iter().map(|c| c.y.abs()).fold(0.0, f64::max).ceil() as i64 + 1;
     let (gx, gy) = (guess.x.round() as i64, guess.y.round() as i64);
     let (w, h) = (grey.width() as i64, grey.height() as i64);
-    if !guess.x.is_finite() || !guess.y.is_finite() || gx - rx < 0 || gy - ry < 0 || gx + rx >= w || gy + ry >= h {
+    if !guess.x.is_finite() || !guess.y.is_finite() {
+        return None;
+    }
+    // The window may run off the image (a hole near its edge, seen close up:
+    // the margin alone is tens of pixels), the outline itself may not: it must
+    // lie inside with `EDGE_SPARE_PX` of face beyond it.
+    let inner = [[-ex, -ey], [ex, -ey], [-ex, ey], [ex, ey]]
+        .map(|[x, y]| mm_to_px * Vector2::new(x - params.margin_mm * x.signum(), y - params.margin_mm * y.signum()));
+    let ix = inner.iter().map(|c| c.x.abs()).fold(0.0, f64::max).ceil() as i64 + EDGE_SPARE_PX;
+    let iy = inner.iter().map(|c| c.y.abs()).fold(0.0, f64::max).ceil() as i64 + EDGE_SPARE_PX;
+    if gx - ix < 0 || gy - iy < 0 || gx + ix >= w || gy + iy >= h {
         return None;
     }
     if rx * ry > 40_000 {
         return None; // a hole that large is not a hole at this scale
     }
+    let (x0, x1, y0, y1) = ((gx - rx).max(0), (gx + rx).min(w - 1), (gy - ry).max(0), (gy + ry).min(h - 1));
     // Pixels inside the elliptic window (in mm: within the margin box).
-    let window_pixels = ((2 * rx + 1) * (2 * ry + 1)) as f64;
+    let window_pixels = ((x1 - x0 + 1) * (y1 - y0 + 1)) as f64;
     let stride = (window_pixels / params.max_pixels.max(1) as f64).sqrt().ceil().max(1.0) as usize;
     pixels.clear();
-    for y in (gy - ry..=gy + ry).step_by(stride) {
-        for x in (gx - rx..=gx + rx).step_by(stride) {
+    for y in (y0..=y1).step_by(stride) {
+        for x in (x0..=x1).step_by(stride) {
             let d = Vector2::new(x as f64 - guess.x, y as f64 - guess.y);
             let q = px_to_mm * d;
             if q.x.abs() <= ex && q.y.abs() <= ey {

@@ -73,7 +73,11 @@ fn a_hole_is_fitted_to_the_same_place_from_any_nearby_start() {
 /// A slot `depth` grey levels below a face at `face`, 4 px per mm, drawn with a
 /// pixel of soft edge (area coverage sampled 4x4 per pixel).
 fn slot_on_face(face: u8, depth: u8) -> (image::GrayImage, nalgebra::Point2<f64>) {
-    let centre = nalgebra::Point2::new(40.3, 39.6);
+    slot_at(face, depth, nalgebra::Point2::new(40.3, 39.6))
+}
+
+/// [`slot_on_face`] with the slot's centre at `centre`.
+fn slot_at(face: u8, depth: u8, centre: nalgebra::Point2<f64>) -> (image::GrayImage, nalgebra::Point2<f64>) {
     let (half_w, half_l) = (2.0 * 4.0 / 2.0, 7.1 * 4.0 / 2.0);
     let grey = image::GrayImage::from_fn(80, 80, |x, y| {
         let mut inside = 0.0;
@@ -104,4 +108,23 @@ fn a_faint_slot_counts_on_a_clipped_face_but_not_on_a_lit_one() {
     // And without the clipped face's allowance the glare's slot is refused too.
     let strict = RefineParams { clipped_contrast_share: 1.0, ..params };
     assert!(refine_hole(&clipped, guess, &j, outline, &strict).is_none());
+}
+
+/// Close up, the fit's margin of face around a hole is tens of pixels: a hole
+/// near the image's edge, wholly inside it, is fitted from the face pixels the
+/// image has (a 2x2 at 10 cm lost its top slot that way at every camera); a
+/// hole the edge cuts is not.
+#[test]
+fn a_slot_by_the_image_edge_is_fitted_while_it_is_wholly_inside() {
+    let outline = outlet_detector::refine::HoleShape::Slot { width_mm: 2.0, length_mm: 7.1 };
+    let j = nalgebra::Matrix2::new(4.0, 0.0, 0.0, 4.0);
+    let params = RefineParams::default();
+    // The slot's top 4 px below the image's top; its margin (1.8 mm, 7.2 px) is not.
+    let (grey, centre) = slot_at(200, 120, nalgebra::Point2::new(40.3, 18.4));
+    let guess = centre + nalgebra::Vector2::new(0.6, -0.5);
+    let fit = refine_hole(&grey, guess, &j, outline, &params).expect("the slot by the edge is found");
+    assert!((fit.centre - centre).norm() < 0.2, "centre {:?} against {centre:?}", fit.centre);
+    // Its top a pixel from the edge: too little face beyond it to place it.
+    let (cut, centre) = slot_at(200, 120, nalgebra::Point2::new(40.3, 15.4));
+    assert!(refine_hole(&cut, centre, &j, outline, &params).is_none(), "a slot at the very edge is not fitted");
 }
