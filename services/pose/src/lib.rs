@@ -491,6 +491,18 @@ pub fn solve_mono(obs: &Observations) -> Result<OutletPose, PoseError> {
     let factor = robust::variance_factor(&rays, &fit.pose, &kept, 6);
     let fit = with_common_errors(fit, &rays, &kept, None);
     let mut covariances = scaled(lm::hole_covariances(&fit, &rays.model), factor);
+    // A small outlet's tilt and depth are no linear function of its pixels: the
+    // covariance takes whatever more the pose spreads when solved again.
+    if let Some(spread) = unscented_spread(&rays, &kept, &fit.pose) {
+        for (c, u) in covariances.iter_mut().zip(spread) {
+            // What the re-solved poses spread beyond the linearised covariance.
+            let extra = (u * factor - *c).symmetric_eigen();
+            let positive = extra.eigenvectors
+                * Matrix3::from_diagonal(&extra.eigenvalues.map(|v| v.max(0.0)))
+                * extra.eigenvectors.transpose();
+            *c += positive;
+        }
+    }
     if let Some(other) = other {
         let other_holes: Vec<Point3<f64>> = rays.model.iter().map(|p| other.fit.pose * p).collect();
         let other_in_front = other_holes.iter().all(in_front);
@@ -523,6 +535,41 @@ pub fn solve_mono(obs: &Observations) -> Result<OutletPose, PoseError> {
         outliers: robust::dropped(&kept),
         variance_factor: factor,
     })
+}
+
+/// Each hole's spread when the pose is solved again with the pixels moved by
+/// `±sqrt(L)` along each of the L directions of their noise (every kept hole's
+/// two principal axes, the common shift and scale): the unscented transform,
+/// which sees where the pose is a nonlinear function of the pixels (a small
+/// outlet's tilt and depth) as the linearised covariance does not.
+fn unscented_spread(rays: &Rays, kept: &[bool], pose: &Isometry3<f64>) -> Option<Vec<Matrix3<f64>>> {
+    let n = rays.xy.len();
+    let mut directions = robust::common_modes(rays, kept);
+    for k in (0..n).filter(|k| kept.get(*k).copied().unwrap_or(false)) {
+        let eig = rays.covariance[k].symmetric_eigen();
+        for axis in 0..2 {
+            let mut d = vec![nalgebra::Vector2::zeros(); n];
+            d[k] = eig.eigenvectors.column(axis) * eig.eigenvalues[axis].max(0.0).sqrt();
+            directions.push(d);
+        }
+    }
+    let l = directions.len() as f64;
+    let base: Vec<Point3<f64>> = rays.model.iter().map(|p| pose * p).collect();
+    let mut total = vec![Matrix3::zeros(); n];
+    let mut moved = robust::subset(rays, &vec![true; n]);
+    for d in &directions {
+        for sign in [1.0, -1.0] {
+            for ((xy, original), dd) in moved.xy.iter_mut().zip(&rays.xy).zip(d) {
+                *xy = original + dd * (l.sqrt() * sign);
+            }
+            let fit = lm::refine(&moved, *pose, None)?;
+            for (t, (p, b)) in total.iter_mut().zip(rays.model.iter().zip(&base)) {
+                let e = fit.pose * p - b;
+                *t += e * e.transpose() / (2.0 * l);
+            }
+        }
+    }
+    Some(total)
 }
 
 /// The Cramér-Rao bound of each hole's position for a true pose: the covariance an
