@@ -147,9 +147,16 @@ pub(crate) fn add_common_modes(
         let pose = closed_form_normal(&rays.model, xy, n)?;
         Some(rays.model.iter().map(|p| (pose * p).coords).collect())
     };
-    // A small share of the draw: the closed form is differentiated numerically.
-    let h = 1e-3;
     for mode in modes {
+        // The closed form is differentiated numerically, by moves of the same
+        // size whatever the draw's (1e-6 of the normalised image, a thousandth
+        // of a pixel at f = 1000 px): the result is then exactly quadratic in
+        // the draw's sigma.
+        let size = mode.iter().map(|d| d.norm()).fold(0.0, f64::max);
+        if !(size > 0.0 && size.is_finite()) {
+            continue;
+        }
+        let h = 1e-6 / size;
         let moved =
             |sign: f64| -> Vec<Vector2<f64>> { rays.xy.iter().zip(mode).map(|(xy, d)| xy + d * (h * sign)).collect() };
         if let (Some(p), Some(q)) = (holes(&moved(1.0)), holes(&moved(-1.0))) {
