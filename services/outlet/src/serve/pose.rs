@@ -53,6 +53,8 @@ pub fn run(rt: &Runtime) -> Result<()> {
     // Detections waiting for the plane of their frame, with when they arrived.
     let mut pending: VecDeque<(DetectionMsg, Instant)> = VecDeque::new();
     let mut last_plane: Option<Instant> = None;
+    // The capture time of the last outlet sent out.
+    let mut last_sent_ns: Option<u64> = None;
     let service_started = Instant::now();
     let plane_wait = Duration::from_secs_f64(config.plane_wait_ms / 1e3);
     let mut health = Health::new(rt.name);
@@ -114,11 +116,22 @@ pub fn run(rt: &Runtime) -> Result<()> {
         }
         // A detection goes out once the plane of its moment is in (a plane as
         // late or later), when planes stopped coming, or after `plane_wait`.
+        // Planes flow while one came lately, or while they keep pace with the
+        // frames however slow these are: the newest plane is of the last frame
+        // sent out or later (at 2.5 frames a second no plane is younger than
+        // 200 ms when a detection comes before its own, which was then solved in
+        // mono). One detection sent without its plane stops that until a newer
+        // plane comes.
+        let newest_plane_ns = recent.iter().map(|p| p.capture_time_ns).max();
         let planes_flowing = last_plane.is_some_and(|t| t.elapsed().as_secs_f64() * 1e3 < config.max_plane_age_ms)
-            || (last_plane.is_none() && service_started.elapsed() < STARTUP_GRACE);
+            || (last_plane.is_none() && service_started.elapsed() < STARTUP_GRACE)
+            || matches!((newest_plane_ns, last_sent_ns), (Some(p), Some(s)) if p >= s);
         while let Some((d, at)) = pending.front() {
             let plane_in = recent.iter().any(|p| p.capture_time_ns >= d.capture_time_ns);
             if d.hole_count == 0 || plane_in || !planes_flowing || at.elapsed() >= plane_wait {
+                if d.hole_count > 0 {
+                    last_sent_ns = Some(d.capture_time_ns);
+                }
                 publish(d, &recent, &mut health);
                 pending.pop_front();
             } else {
