@@ -337,14 +337,7 @@ fn pose_errors(
     let pixels: Vec<Point2<f64>> = detection.holes.iter().map(|h| h.pixel).collect();
     let truth: Vec<Point3<f64>> = frame.truth.holes.iter().filter_map(|h| h.position_m.map(Point3::from)).collect();
     let pixel_rms = (errors_px.iter().map(|e| e * e).sum::<f64>() / errors_px.len().max(1) as f64).sqrt();
-    let obs = Observations {
-        model_mm: &model,
-        pixels: &pixels,
-        camera,
-        pixel_sigma: 0.25,
-        pixel_sigmas: None,
-        pixel_shapes: None,
-    };
+    let obs = Observations::uniform(&model, &pixels, camera, 0.25);
     let errors = |holes: &[Point3<f64>]| -> Vec<f64> {
         holes.iter().zip(&truth).map(|(h, t)| (h - t).norm() * 1000.0).collect()
     };

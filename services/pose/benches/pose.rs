@@ -24,14 +24,7 @@ fn bench(c: &mut Criterion) {
                 Point2::new(p.x + 0.2 * ((k % 3) as f64 - 1.0), p.y - 0.2 * ((k % 2) as f64 - 0.5))
             })
             .collect();
-        let obs = Observations {
-            model_mm: &model,
-            pixels: &pixels,
-            camera: &cam,
-            pixel_sigma: 0.2,
-            pixel_sigmas: None,
-            pixel_shapes: None,
-        };
+        let obs = Observations::uniform(&model, &pixels, &cam, 0.2);
         let n = truth.rotation * Vector3::z();
         let plane = PlaneMeasurement::new(n, n.dot(&truth.translation.vector) + 0.005, 0.005, 0.0003, 0.005);
         c.bench_function(&format!("pose_plane_{name}"), |b| b.iter(|| black_box(solve_plane(&obs, &plane))));

@@ -116,7 +116,7 @@ pub(crate) fn covariances(rays: &Rays, n: &Unit<Vector3<f64>>, sigma_rad: f64) -
             }
         }
         for i in 0..m {
-            total[i] += jk[i] * rays.covariance[k] * jk[i].transpose();
+            total[i] += jk[i] * rays.covariance[k] * jk[i].transpose() * rays.share.powi(2);
         }
     }
     if sigma_rad > 0.0 {

@@ -150,6 +150,25 @@ pub(crate) fn cost(rays: &Rays, pose: &Isometry3<f64>, prior: Option<&Prior>) ->
     linearise(rays, pose, prior).map_or(f64::INFINITY, |(r, _)| r.iter().map(|v| v * v).sum())
 }
 
+/// The fit's covariance with the holes' own noise at `rays.share` of their
+/// sigma, the estimate weighed by the whole sigma as it is: `A⁻¹ (k² H + P)
+/// A⁻¹` for A = H + P (H from the pixels, P from the prior), which is `k² A⁻¹`
+/// without a prior.
+pub(crate) fn with_own_noise(fit: Fit, rays: &Rays, prior: Option<&Prior>) -> Fit {
+    let k2 = rays.share.powi(2);
+    let c = fit.covariance;
+    let from_prior = prior.and_then(|prior| {
+        let (_, jac) = linearise(rays, &fit.pose, Some(prior))?;
+        let rows = jac.get(2 * rays.model.len()..)?;
+        Some(rows.iter().fold(Matrix6::zeros(), |p, j| p + j.transpose() * j))
+    });
+    let covariance = match from_prior {
+        Some(p) => c * k2 + c * p * c * (1.0 - k2),
+        None => c * k2,
+    };
+    Fit { covariance: (covariance + covariance.transpose()) * 0.5, ..fit }
+}
+
 /// Each hole's position covariance from the pose parameters' covariance.
 pub(crate) fn hole_covariances(fit: &Fit, model: &[Point3<f64>]) -> Vec<Matrix3<f64>> {
     let r = fit.pose.rotation.to_rotation_matrix();

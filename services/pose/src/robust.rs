@@ -39,18 +39,20 @@ pub(crate) fn subset(rays: &Rays, kept: &[bool]) -> Rays {
         model: (0..rays.xy.len()).filter(pick).map(|k| rays.model[k]).collect(),
         sigma: (0..rays.xy.len()).filter(pick).map(|k| rays.sigma[k]).collect(),
         px_to_xy: (0..rays.xy.len()).filter(pick).map(|k| rays.px_to_xy[k]).collect(),
+        share: rays.share,
     }
 }
 
-/// The kept holes' cost per degree of freedom, at least 1: the factor the
-/// covariance is scaled by. `fixed` is how many pose parameters the pixels must
+/// The kept holes' cost per degree of freedom over their own noise's share
+/// squared, at least 1: the factor the covariance is scaled by. `fixed` is how many pose parameters the pixels must
 /// determine (6, less what a prior fixes).
 pub(crate) fn variance_factor(rays: &Rays, pose: &Isometry3<f64>, kept: &[bool], fixed: usize) -> f64 {
     let costs = lm::hole_costs(rays, pose);
     let n = kept.iter().filter(|k| **k).count();
     let cost: f64 = costs.iter().zip(kept).filter(|(_, k)| **k).map(|(c, _)| *c).sum();
     let dof = (2 * n).saturating_sub(fixed);
-    if dof == 0 || !cost.is_finite() { 1.0 } else { (cost / dof as f64).max(1.0) }
+    // Against the holes' own noise, the share of their sigma that shows in residuals.
+    if dof == 0 || !cost.is_finite() { 1.0 } else { (cost / dof as f64 / rays.share.powi(2)).max(1.0) }
 }
 
 /// The most holes dropped: a third (2 of 6, 4 of 12).

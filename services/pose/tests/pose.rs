@@ -54,14 +54,7 @@ fn noise_free_holes_give_the_exact_pose_in_every_mode() {
         {
             let truth = pose(d, tilt, az, roll);
             let px = pixels(&truth, &m, &cam);
-            let obs = Observations {
-                model_mm: &m,
-                pixels: &px,
-                camera: &cam,
-                pixel_sigma: 0.2,
-                pixel_sigmas: None,
-                pixel_shapes: None,
-            };
+            let obs = Observations::uniform(&m, &px, &cam, 0.2);
             let n = truth.rotation * Vector3::z();
             let sols = [
                 solve_normal(&obs, &n, 0.0).expect("normal"),
@@ -84,14 +77,7 @@ fn two_holes_determine_pose_with_known_normal() {
     let m = vec![Point2::new(-6.35, -24.05), Point2::new(6.35, -24.05)];
     let truth = pose(0.3, 30.0, 60.0, 15.0);
     let px = pixels(&truth, &m, &cam);
-    let obs = Observations {
-        model_mm: &m,
-        pixels: &px,
-        camera: &cam,
-        pixel_sigma: 0.2,
-        pixel_sigmas: None,
-        pixel_shapes: None,
-    };
+    let obs = Observations::uniform(&m, &px, &cam, 0.2);
     let sol = solve_normal(&obs, &(truth.rotation * Vector3::z()), 0.0).expect("two holes suffice");
     assert!(max_error(&sol, &truth, &m) < 1e-9);
     // Mono needs four.
@@ -146,14 +132,7 @@ fn the_normal_mode_is_the_papers_formula_on_identical_inputs() {
         p.x += 0.4 * ((k * 7 % 5) as f64 - 2.0) / 2.0;
         p.y += 0.3 * ((k * 3 % 4) as f64 - 1.5) / 1.5;
     }
-    let obs = Observations {
-        model_mm: &m,
-        pixels: &px,
-        camera: &cam,
-        pixel_sigma: 0.2,
-        pixel_sigmas: None,
-        pixel_shapes: None,
-    };
+    let obs = Observations::uniform(&m, &px, &cam, 0.2);
     let n = truth.rotation * Vector3::z();
     let sol = solve_normal(&obs, &n, 0.0).expect("normal");
     let xy: Vec<Vector2<f64>> = px.iter().map(|p| cam.undistort_pixel(*p)).collect();
@@ -181,14 +160,7 @@ fn monte_carlo(mode: Mode) {
         (-2.0 * u().ln()).sqrt() * (std::f64::consts::TAU * u()).cos()
     };
     let solve = |px: &[Point2<f64>], plane: &PlaneMeasurement, normal: &Vector3<f64>| {
-        let obs = Observations {
-            model_mm: &m,
-            pixels: px,
-            camera: &cam,
-            pixel_sigma: sigma_px,
-            pixel_sigmas: None,
-            pixel_shapes: None,
-        };
+        let obs = Observations::uniform(&m, px, &cam, sigma_px);
         match mode {
             Mode::Normal => solve_normal(&obs, normal, 0.01),
             Mode::Plane => solve_plane(&obs, plane),
@@ -200,8 +172,12 @@ fn monte_carlo(mode: Mode) {
     let mut sums = vec![Matrix3::zeros(); m.len()];
     let mut solved = 0;
     for _ in 0..trials {
+        // A hole's own noise is the mode's share of its sigma (the rest is
+        // common to every hole, which this test does not draw).
+        let own = sigma_px
+            * if mode == Mode::Mono { outlet_pose::MONO_OWN_NOISE_SHARE } else { outlet_pose::OWN_NOISE_SHARE };
         let px: Vec<Point2<f64>> =
-            clean.iter().map(|p| Point2::new(p.x + sigma_px * gauss(), p.y + sigma_px * gauss())).collect();
+            clean.iter().map(|p| Point2::new(p.x + own * gauss(), p.y + own * gauss())).collect();
         let [e1, e2] = outlet_pose::tangent_basis(&n_true);
         let n = (n_true + e1 * 0.01 * gauss() + e2 * 0.01 * gauss()).normalize();
         let noisy_plane = PlaneMeasurement {
@@ -260,14 +236,7 @@ fn degenerate_inputs_give_clear_errors_never_nan() {
     let m = model("2x1");
     let truth = pose(0.3, 10.0, 0.0, 0.0);
     let px = pixels(&truth, &m, &cam);
-    let obs = Observations {
-        model_mm: &m,
-        pixels: &px,
-        camera: &cam,
-        pixel_sigma: 0.2,
-        pixel_sigmas: None,
-        pixel_shapes: None,
-    };
+    let obs = Observations::uniform(&m, &px, &cam, 0.2);
     // A normal lying in the image plane (perpendicular to the line of sight).
     let grazing = Vector3::new(1.0, 0.0, 0.0);
     let e = solve_normal(&obs, &grazing, 0.0).expect_err("grazing normal");
@@ -278,35 +247,14 @@ fn degenerate_inputs_give_clear_errors_never_nan() {
     // Collinear holes: a line of four.
     let line: Vec<Point2<f64>> = (0..4).map(|k| Point2::new(k as f64 * 10.0, 0.0)).collect();
     let lpx = pixels(&truth, &line, &cam);
-    let lobs = Observations {
-        model_mm: &line,
-        pixels: &lpx,
-        camera: &cam,
-        pixel_sigma: 0.2,
-        pixel_sigmas: None,
-        pixel_shapes: None,
-    };
+    let lobs = Observations::uniform(&line, &lpx, &cam, 0.2);
     assert!(matches!(solve_mono(&lobs), Err(PoseError::Collinear)));
     // Empty and non-finite inputs.
-    let empty = Observations {
-        model_mm: &[],
-        pixels: &[],
-        camera: &cam,
-        pixel_sigma: 0.2,
-        pixel_sigmas: None,
-        pixel_shapes: None,
-    };
+    let empty = Observations::uniform(&[], &[], &cam, 0.2);
     assert!(matches!(solve_plane(&empty, &wall(&truth)), Err(PoseError::TooFewHoles { got: 0, .. })));
     let mut bad = px.clone();
     bad[2].x = f64::NAN;
-    let bobs = Observations {
-        model_mm: &m,
-        pixels: &bad,
-        camera: &cam,
-        pixel_sigma: 0.2,
-        pixel_sigmas: None,
-        pixel_shapes: None,
-    };
+    let bobs = Observations::uniform(&m, &bad, &cam, 0.2);
     assert!(matches!(solve_mono(&bobs), Err(PoseError::NonFinite { index: 2 })));
     let nan_plane = PlaneMeasurement { distance_m: f64::NAN, ..wall(&truth) };
     assert!(matches!(solve_plane(&obs, &nan_plane), Err(PoseError::BadPlane)));
@@ -334,14 +282,7 @@ fn a_stereo_plane_of_another_wall_is_refused_even_with_wide_priors() {
     let m = model("2x1");
     let truth = pose(0.3, 20.0, 30.0, 5.0);
     let px = pixels(&truth, &m, &cam);
-    let obs = Observations {
-        model_mm: &m,
-        pixels: &px,
-        camera: &cam,
-        pixel_sigma: 0.2,
-        pixel_sigmas: None,
-        pixel_shapes: None,
-    };
+    let obs = Observations::uniform(&m, &px, &cam, 0.2);
     let real = |p: PlaneMeasurement| p.with_model_error(1.15e-3, 0.48f64.to_radians(), 1.32e-3);
     let right = real(wall(&truth));
     let sol = solve_plane(&obs, &right).expect("the outlet's own wall");

@@ -107,14 +107,7 @@ fn solve(
     plane_covariance_scale: f64,
 ) -> Result<OutletPose, TestCaseError> {
     let cam = camera();
-    let obs = Observations {
-        model_mm: m,
-        pixels: px,
-        camera: &cam,
-        pixel_sigma: sigma_px,
-        pixel_sigmas: None,
-        pixel_shapes: None,
-    };
+    let obs = Observations::uniform(m, px, &cam, sigma_px);
     let result = match solver {
         Solver::Normal => solve_normal(&obs, &(truth.rotation * Vector3::z()), 0.0),
         Solver::Plane => solve_plane(&obs, &wall(truth, plane_covariance_scale)),
