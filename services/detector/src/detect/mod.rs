@@ -1,0 +1,625 @@
+//! The detector: the paper's stages in order (`candidates` → `classify` → `hash`)
+//! and what goes beyond it (`refine`: sub-pixel holes, and a final check that the
+//! refined holes lie where one outlet plane puts them). Here: the detector and
+//! its levels (full frame, windows, the half-resolution first look); in
+//! `holes`, each hypothesis's holes refined and the outlet verified from them;
+//! `params`, every stage's parameters; `pyramid`, the half-resolution image.
+
+mod holes;
+mod params;
+mod pyramid;
+
+pub use holes::MIN_SIGMA_OF_MEDIAN;
+pub use params::DetectorParams;
+pub use pyramid::half_resolution;
+
+use crate::candidates::find_candidates;
+use crate::hashing::{HashParams, HashTable, Intrinsics, find_outlet};
+use crate::refine::HoleShape;
+use crate::template::Template;
+use crate::{Candidate, Class, grey_of};
+use image::{GrayImage, RgbImage};
+use nalgebra::{Matrix2, Matrix3, Point2, Vector2};
+use outlet_protocol::{CameraModel, HoleKind};
+use pyramid::half_camera;
+use std::time::Instant;
+
+/// One hole of a found outlet.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DetectedHole {
+    pub kind: HoleKind,
+    /// In the image as captured (distorted), OpenCV convention.
+    pub pixel: Point2<f64>,
+    /// Whether the sub-pixel fit placed this hole's centre. False where the fit
+    /// could not (a faint or crowded hole), but the hole's outline was seen right
+    /// where the other holes' homography puts it, which gives the centre; a hole
+    /// not seen at all refuses the outlet ([`crate::verify`]).
+    pub refined: bool,
+    /// Evidence in 0..1 that the hole was seen where the outlet's homography puts
+    /// it, with the predicted outline ([`crate::verify::hole_score`]).
+    pub score: f64,
+    /// Standard deviation of `pixel` per axis (pixels), from the outline fit's
+    /// residuals ([`crate::refine::Refined::sigma_px`]).
+    pub sigma_px: f64,
+    /// How `sigma_px`'s variance divides among the image axes (trace 2,
+    /// [`crate::refine::Refined::shape`]): the covariance of `pixel` is
+    /// [`Self::covariance_px`].
+    pub shape: Matrix2<f64>,
+}
+
+impl DetectedHole {
+    /// The covariance of `pixel` (pixels²).
+    pub fn covariance_px(&self) -> Matrix2<f64> {
+        self.shape * self.sigma_px.powi(2)
+    }
+}
+
+/// A found outlet.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Detection {
+    /// Every hole of the template, in template order.
+    pub holes: Vec<DetectedHole>,
+    /// Template holes matched by a same-class candidate (the paper's score S).
+    pub score: usize,
+    /// Template (mm) to undistorted image (px) homography of the refined holes.
+    pub homography: Matrix3<f64>,
+}
+
+impl Detection {
+    /// The same outlet in an image whose origin lies `shift` pixels up and left
+    /// of this one's (a crop's outlet in its frame).
+    fn translate(&mut self, shift: Vector2<f64>) {
+        for hole in &mut self.holes {
+            hole.pixel += shift;
+        }
+        self.homography = translation(shift) * self.homography;
+    }
+}
+
+/// The homography that moves pixels by `shift`.
+fn translation(shift: Vector2<f64>) -> Matrix3<f64> {
+    Matrix3::new(1.0, 0.0, shift.x, 0.0, 1.0, shift.y, 0.0, 0.0, 1.0)
+}
+
+/// The camera of `crop`, cut at `origin` from a frame of `camera`. Cropping
+/// moves the principal point only: distortion is a function of the normalised
+/// ray, which cropping does not change.
+fn crop_camera(camera: Option<&CameraModel>, crop: &GrayImage, origin: [u32; 2]) -> Option<CameraModel> {
+    let (width, height) = crop.dimensions();
+    camera.map(|c| CameraModel { width, height, cx: c.cx - origin[0] as f64, cy: c.cy - origin[1] as f64, ..*c })
+}
+
+/// Milliseconds per stage.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTimes {
+    pub candidates: f64,
+    pub classify: f64,
+    pub hash: f64,
+    pub refine: f64,
+}
+
+impl std::ops::AddAssign for StageTimes {
+    fn add_assign(&mut self, other: Self) {
+        self.candidates += other.candidates;
+        self.classify += other.classify;
+        self.hash += other.hash;
+        self.refine += other.refine;
+    }
+}
+
+impl StageTimes {
+    pub fn total(&self) -> f64 {
+        self.candidates + self.classify + self.hash + self.refine
+    }
+}
+
+/// What one image gave: the outlet or none, and what led there.
+#[derive(Debug, Clone)]
+pub struct DetectReport {
+    pub detection: Option<Detection>,
+    /// Every candidate with its class.
+    pub candidates: Vec<(Candidate, Class)>,
+    pub times: StageTimes,
+    /// Why an outlet that geometric hashing found was not reported (a hole not
+    /// seen, off the plane, the ground holes or the outlines against its
+    /// reading); `None` when one was reported or hashing found none.
+    pub rejected: Option<String>,
+}
+
+/// What a pyramid level says: its outlet (in the full image's pixels), or why
+/// not (the reason a found outlet was refused, if any).
+type LevelOutcome = Result<Detection, Option<String>>;
+
+/// A reading hashing found and verification refused: the template to
+/// undistorted image homography and each hole's candidate centre (as captured).
+struct Hypothesis {
+    transform: Matrix3<f64>,
+    guesses: Vec<Option<Point2<f64>>>,
+    score: usize,
+    /// Why verification refused it.
+    why: String,
+}
+
+/// A template ready to detect with.
+#[derive(Debug, Clone)]
+pub struct Detector {
+    template: Template,
+    table: HashTable,
+    outlines: Vec<HoleShape>,
+    params: DetectorParams,
+}
+
+/// The farthest outlet the detector looks for when it knows the camera (mm):
+/// the hashing's smallest scale, and what the half level of a large image must
+/// resolve. The robot parks 20-50 cm from the wall.
+pub const FARTHEST_OUTLET_MM: f64 = 700.0;
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+impl Detector {
+    pub fn new(template: Template, params: DetectorParams) -> Self {
+        let points: Vec<Point2<f64>> = template.geometry.holes.iter().map(|h| h.position()).collect();
+        let classes: Vec<Class> = template.geometry.holes.iter().map(|h| Class::from(h.kind)).collect();
+        let table = HashTable::new(&points, &classes, &params.hash);
+        let outlines = HoleShape::us_outlines(&template.geometry);
+        Self { template, table, outlines, params }
+    }
+
+    pub fn template(&self) -> &Template {
+        &self.template
+    }
+
+    pub fn params(&self) -> &DetectorParams {
+        &self.params
+    }
+
+    /// Finds the template's outlet in an image, or reports none. With a camera,
+    /// geometry works on undistorted coordinates; pixels are reported as captured.
+    pub fn detect(&self, image: &RgbImage, camera: Option<&CameraModel>) -> DetectReport {
+        let grey = grey_of(image);
+        self.detect_grey(&grey, camera)
+    }
+
+    pub fn detect_grey(&self, grey: &GrayImage, camera: Option<&CameraModel>) -> DetectReport {
+        self.detect_sized(grey, camera, grey.width().max(grey.height()))
+    }
+
+    /// Looks for the outlet in `window` (`[x, y, width, height]` pixels, clipped
+    /// to the image) only, as [`Self::detect_grey`] would in the whole image: the
+    /// same stages and the same verification, with the choices that depend on
+    /// the image's size (the pyramid, the contrast of large images) made for the
+    /// whole image. Pixels, homography and candidates are in the whole image's
+    /// coordinates. Tracking ([`crate::track`]) looks where the outlet was.
+    pub fn detect_window(&self, grey: &GrayImage, camera: Option<&CameraModel>, window: [u32; 4]) -> DetectReport {
+        let (w, h) = grey.dimensions();
+        let [x, y] = [window[0].min(w), window[1].min(h)];
+        let [cw, ch] = [window[2].min(w - x), window[3].min(h - y)];
+        if cw == 0 || ch == 0 {
+            return DetectReport {
+                detection: None,
+                candidates: Vec::new(),
+                times: StageTimes::default(),
+                rejected: Some("the search window is empty".into()),
+            };
+        }
+        let crop = image::imageops::crop_imm(grey, x, y, cw, ch).to_image();
+        self.detect_crop(&crop, [x, y], [w, h], camera)
+    }
+
+    /// [`Self::detect_window`] on the window's pixels alone: `crop` is the part
+    /// of a `frame_size` frame whose top left pixel is `origin`. A caller that
+    /// converts frames to grey itself converts only the window (tracking).
+    pub fn detect_crop(
+        &self,
+        crop: &GrayImage,
+        origin: [u32; 2],
+        frame_size: [u32; 2],
+        camera: Option<&CameraModel>,
+    ) -> DetectReport {
+        let camera = crop_camera(camera, crop, origin);
+        let mut report = self.detect_sized(crop, camera.as_ref(), frame_size[0].max(frame_size[1]));
+        let shift = Vector2::new(origin[0] as f64, origin[1] as f64);
+        if let Some(d) = report.detection.as_mut() {
+            d.translate(shift);
+        }
+        for (c, _) in &mut report.candidates {
+            c.centre += shift;
+        }
+        report
+    }
+
+    /// Verifies the outlet where `homography` (template mm to the frame's
+    /// undistorted pixels) puts it, each hole's fit starting from `guesses`
+    /// (the frame's pixels as captured, template order): the refinement and
+    /// every check of a detection ([`Self::refine`]: each hole seen on one
+    /// plane, not mirrored, the ground holes and the outlines for its reading),
+    /// without candidates or hashing. Tracking ([`crate::track`]) gives the last
+    /// frame's outlet. `crop` is the part of a `frame_size` frame at `origin`,
+    /// as in [`Self::detect_crop`]; pixels and homography come back in the
+    /// frame's coordinates, `score` is carried into the detection. A hole found
+    /// farther than `max_move_px` from its guess refuses the outlet: the
+    /// outlet moved more than a follow should take on trust.
+    #[allow(clippy::too_many_arguments)] // a crop's place and the outlet to verify there
+    pub fn verify_at(
+        &self,
+        crop: &GrayImage,
+        origin: [u32; 2],
+        camera: Option<&CameraModel>,
+        homography: &Matrix3<f64>,
+        guesses: &[Point2<f64>],
+        score: usize,
+        max_move_px: f64,
+    ) -> DetectReport {
+        let t = Instant::now();
+        let shift = Vector2::new(origin[0] as f64, origin[1] as f64);
+        let camera = crop_camera(camera, crop, origin);
+        let to_crop = translation(-shift);
+        let shifted: Vec<Option<Point2<f64>>> = guesses.iter().map(|g| Some(g - shift)).collect();
+        let lens = Lens { camera: camera.as_ref() };
+        let result = if guesses.len() != self.template.geometry.holes.len() {
+            Err(format!(
+                "{} hole guesses for a template of {} holes",
+                guesses.len(),
+                self.template.geometry.holes.len()
+            ))
+        } else {
+            self.refine(crop, &lens, &(to_crop * homography), &shifted, score).and_then(|mut d| {
+                d.translate(shift);
+                for (hole, guess) in d.holes.iter().zip(guesses) {
+                    let moved = (hole.pixel - guess).norm();
+                    if moved.is_nan() || moved > max_move_px {
+                        return Err(format!("a hole moved {moved:.1} px, more than {max_move_px:.1} px"));
+                    }
+                }
+                Ok(d)
+            })
+        };
+        let times = StageTimes { refine: ms_since(t), ..StageTimes::default() };
+        match result {
+            Ok(d) => DetectReport { detection: Some(d), candidates: Vec::new(), times, rejected: None },
+            Err(why) => {
+                tracing::debug!(reason = %why, "the followed outlet is not verified");
+                DetectReport { detection: None, candidates: Vec::new(), times, rejected: Some(why) }
+            }
+        }
+    }
+
+    /// [`Self::detect_grey`], with the size-dependent choices made for an image
+    /// whose larger side is `largest` (this one, or the frame it was cut from).
+    fn detect_sized(&self, grey: &GrayImage, camera: Option<&CameraModel>, largest: u32) -> DetectReport {
+        self.detect_level(grey, camera, largest, &mut Vec::new())
+    }
+
+    /// [`Self::detect_sized`], also giving the hypotheses that hashing found in
+    /// this image and its verification here refused (`refused`).
+    fn detect_level(
+        &self,
+        grey: &GrayImage,
+        camera: Option<&CameraModel>,
+        largest: u32,
+        refused: &mut Vec<Hypothesis>,
+    ) -> DetectReport {
+        let mut times = StageTimes::default();
+        let coarse_first = self.params.coarse_first_px > 0 && largest >= self.params.coarse_first_px;
+        if coarse_first && let Some((half, candidates)) = self.at_half_resolution(grey, camera, largest, &mut times) {
+            match half {
+                Ok(found) => return DetectReport { detection: Some(found), candidates, times, rejected: None },
+                Err(rejected) if !self.params.full_after_coarse(camera) => {
+                    return DetectReport { detection: None, candidates, times, rejected };
+                }
+                Err(_) => {}
+            }
+        }
+        let t = Instant::now();
+        let _span = tracing::debug_span!("detect", width = grey.width(), height = grey.height()).entered();
+        let mut params = self.params.candidates.clone();
+        if largest >= self.params.large_image_px {
+            // Larger images resolve holes well; texture (carpet, paint) brings
+            // hundreds of faint blobs that a looser contrast would let in.
+            params.min_contrast = params.min_contrast.max(self.params.large_image_min_contrast);
+        }
+        let mut candidates = find_candidates(grey, &params);
+        candidates.sort_by(|a, b| b.contrast.total_cmp(&a.contrast));
+        candidates.truncate(self.params.max_candidates);
+        times.candidates = ms_since(t);
+
+        let t = Instant::now();
+        let classifications: Vec<_> =
+            candidates.iter().map(|c| self.template.descriptor.classify_candidate(grey, c)).collect();
+        let classified: Vec<(Candidate, Class)> =
+            candidates.iter().zip(&classifications).map(|(c, k)| (*c, k.class)).collect();
+        times.classify = ms_since(t);
+
+        // What the image and the camera tell the hashing: the frame's size, and
+        // with a camera the scales an outlet 5-70 cm away can have (sqrt of the
+        // Jacobian's determinant; down to the most foreshortening hashing allows):
+        // an arm's camera sees the outlet to the last centimetres (issue 21).
+        let mut hash = self.params.hash.clone();
+        hash.image_size = Some([grey.width() as f64, grey.height() as f64]);
+        if let Some(c) = camera {
+            let f = (c.fx * c.fy).sqrt();
+            hash.scale_range = Some([f / FARTHEST_OUTLET_MM * hash.min_axis_ratio.clamp(0.0, 1.0).sqrt(), f / 50.0]);
+            hash.intrinsics = Some(Intrinsics { fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy });
+        }
+        let lens = Lens { camera };
+        let (mut detection, mut rejected) = self.search(grey, &lens, &classified, &hash, &mut times, refused);
+        if detection.is_none() && self.params.second_look_margin > 0.0 {
+            // A second look: candidates the descriptor put only narrowly in the
+            // background (shadowed or washed-out holes) count as their nearer hole
+            // class. Hashing, its significance test and the plane check still
+            // stand between them and a false alarm.
+            let margin = self.params.second_look_margin;
+            let relax = |k: &crate::descriptor::Classification| {
+                let [p, g, b] = k.class_distances;
+                match k.class {
+                    Class::Background if p.min(g) < b + margin => {
+                        if p <= g {
+                            Class::Power
+                        } else {
+                            Class::Ground
+                        }
+                    }
+                    other => other,
+                }
+            };
+            let relaxed: Vec<(Candidate, Class)> =
+                candidates.iter().zip(&classifications).map(|(c, k)| (*c, relax(k))).collect();
+            if relaxed.iter().zip(&classified).any(|(a, b)| a.1 != b.1) {
+                let (second, why) = self.search(grey, &lens, &relaxed, &hash, &mut times, refused);
+                detection = second;
+                rejected = why.or(rejected);
+            }
+            let spread = self.params.third_look_spread;
+            if detection.is_none() && spread > 0 {
+                // A third look, only after the first two found nothing (what
+                // they find stays as it was): the candidates still background
+                // at the scale their size implies, looked at a step either side.
+                let t = Instant::now();
+                let third: Vec<(Candidate, Class)> = relaxed
+                    .iter()
+                    .map(|&(c, class)| match class {
+                        Class::Background => {
+                            (c, relax(&self.template.descriptor.classify_candidate_spread(grey, &c, spread)))
+                        }
+                        class => (c, class),
+                    })
+                    .collect();
+                times.classify += ms_since(t);
+                if third.iter().zip(&relaxed).any(|(a, b)| a.1 != b.1) {
+                    let (found, why) = self.search(grey, &lens, &third, &hash, &mut times, refused);
+                    detection = found;
+                    rejected = why.or(rejected);
+                }
+            }
+            let swap = self.params.swap_look_margin;
+            if detection.is_none() && swap > 0.0 {
+                // Where the descriptor nearly could not tell the hole classes
+                // apart, the candidate also counts as the other class (a copy at
+                // the same place: one place can match only one hole).
+                let mut swapped = relaxed.clone();
+                for (&(c, class), k) in relaxed.iter().zip(&classifications) {
+                    let [p, g, _] = k.class_distances;
+                    match class {
+                        Class::Power if g < p + swap => swapped.push((c, Class::Ground)),
+                        Class::Ground if p < g + swap => swapped.push((c, Class::Power)),
+                        _ => {}
+                    }
+                }
+                if swapped.len() > relaxed.len() {
+                    let (found, why) = self.search(grey, &lens, &swapped, &hash, &mut times, refused);
+                    detection = found;
+                    rejected = why.or(rejected);
+                }
+            }
+        }
+        // (Coarse first: the levels below were looked at already.)
+        if detection.is_none()
+            && !coarse_first
+            && self.params.pyramid_min_px > 0
+            && largest >= self.params.pyramid_min_px
+            && let Some((half, _)) = self.at_half_resolution(grey, camera, largest, &mut times)
+        {
+            match half {
+                Ok(found) => detection = Some(found),
+                Err(why) => rejected = why.or(rejected),
+            }
+        }
+        if detection.is_some() {
+            rejected = None;
+        }
+        DetectReport { detection, candidates: classified, times, rejected }
+    }
+
+    /// The outlet found in the image at half resolution (each level of a pyramid
+    /// in turn, while nothing is found), in this image's pixels; `Err` with why
+    /// not. None when the half image or its camera cannot be made.
+    fn at_half_resolution(
+        &self,
+        grey: &GrayImage,
+        camera: Option<&CameraModel>,
+        largest: u32,
+        times: &mut StageTimes,
+    ) -> Option<(LevelOutcome, Vec<(Candidate, Class)>)> {
+        let half = half_resolution(grey)?;
+        let half_camera = match camera {
+            Some(c) => Some(half_camera(c, half.width(), half.height())?),
+            None => None,
+        };
+        let mut refused = Vec::new();
+        let report = self.detect_level(&half, half_camera.as_ref(), largest / 2, &mut refused);
+        *times += report.times;
+        // OpenCV pixel centres: full = 2 half + 0.5, in the image as captured
+        // and in undistorted pixels alike (the camera is scaled the same way).
+        let up = Matrix3::new(2.0, 0.0, 0.5, 0.0, 2.0, 0.5, 0.0, 0.0, 1.0);
+        let to_full = |p: Point2<f64>| Point2::new(2.0 * p.x + 0.5, 2.0 * p.y + 0.5);
+        // The level's candidates in this image's pixels.
+        let candidates = report
+            .candidates
+            .iter()
+            .map(|(c, class)| {
+                let centre = to_full(c.centre);
+                let size = [c.size[0].saturating_mul(2), c.size[1].saturating_mul(2)];
+                (Candidate { centre, size, area: c.area.saturating_mul(4), ..*c }, *class)
+            })
+            .collect();
+        let outcome = match report.detection {
+            Some(mut d) => {
+                for h in &mut d.holes {
+                    h.pixel = to_full(h.pixel);
+                    h.sigma_px *= 2.0;
+                }
+                d.homography = up * d.homography;
+                // Found at half resolution, refined and verified again at full
+                // resolution: the half level's centres carry twice its pixel
+                // error (on the Willow views, 4-6 px where full resolution gives
+                // 1-2). Where the full level refuses, so does the detector: the
+                // half level's outlet once stood in its place, and on a Willow
+                // view it held a hole predicted 6.8 px (2 mm) from the real one
+                // that full resolution had found to lie elsewhere; without it the
+                // approaches and the Willow views lost no other find.
+                let t = Instant::now();
+                let guesses: Vec<Option<Point2<f64>>> = d.holes.iter().map(|h| Some(h.pixel)).collect();
+                let full = self.refine(grey, &Lens { camera }, &d.homography, &guesses, d.score);
+                times.refine += ms_since(t);
+                full.map_err(|why| {
+                    tracing::debug!(reason = %why, "half-resolution outlet refused at full resolution");
+                    Some(format!("found at half resolution, refused at full resolution: {why}"))
+                })
+            }
+            // What hashing found here but the half level's verification refused
+            // (most often a faint hole: a real ground hole of a few pixels at
+            // half size) is verified again at full resolution, where the
+            // hole's outline has four times the pixels; the full level's
+            // verification decides, as for any outlet.
+            None => {
+                let t = Instant::now();
+                let lens = Lens { camera };
+                let mut outcome = Err(report.rejected);
+                for h in &refused {
+                    let guesses: Vec<Option<Point2<f64>>> = h.guesses.iter().map(|g| g.map(to_full)).collect();
+                    match self.refine_either(grey, &lens, &(up * h.transform), &guesses, h.score) {
+                        Ok(found) => {
+                            tracing::debug!("refused at half resolution, verified at full resolution");
+                            outcome = Ok(found);
+                            break;
+                        }
+                        Err(why) => tracing::debug!(reason = %why, "refused at half and at full resolution"),
+                    }
+                }
+                times.refine += ms_since(t);
+                outcome
+            }
+        };
+        Some((outcome, candidates))
+    }
+
+    /// Hashing over the hole-classed candidates, then refinement and
+    /// verification: the outlet, or why the one hashing found was refused.
+    fn search(
+        &self,
+        grey: &GrayImage,
+        lens: &Lens,
+        classified: &[(Candidate, Class)],
+        hash: &HashParams,
+        times: &mut StageTimes,
+        refused: &mut Vec<Hypothesis>,
+    ) -> (Option<Detection>, Option<String>) {
+        let t = Instant::now();
+        let holes: Vec<&(Candidate, Class)> =
+            classified.iter().filter(|(_, class)| *class != Class::Background).collect();
+        let points: Vec<Point2<f64>> = holes.iter().map(|(c, _)| lens.undistort(c.centre)).collect();
+        let classes: Vec<Class> = holes.iter().map(|(_, class)| *class).collect();
+        let sizes: Vec<f64> = holes.iter().map(|(c, _)| c.size[0].max(c.size[1]) as f64).collect();
+        let found = find_outlet(&self.table, &points, &classes, &sizes, hash);
+        times.hash += ms_since(t);
+        let Some(m) = found else { return (None, None) };
+        let t = Instant::now();
+        let guesses: Vec<Option<Point2<f64>>> =
+            m.assignment.iter().map(|a| a.and_then(|k| holes.get(k).map(|(c, _)| c.centre))).collect();
+        // A later look with more candidates often finds the same reading again:
+        // verification would refuse it again, for the same reason.
+        let same = |h: &&Hypothesis| h.transform == m.transform && h.guesses == guesses && h.score == m.score;
+        if let Some(h) = refused.iter().find(same) {
+            tracing::debug!(reason = %h.why, "the same reading as one refused before");
+            return (None, Some(h.why.clone()));
+        }
+        let result = self.refine_either(grey, lens, &m.transform, &guesses, m.score);
+        if let Err(why) = &result {
+            refused.push(Hypothesis { transform: m.transform, guesses, score: m.score, why: why.clone() });
+        }
+        times.refine += ms_since(t);
+        match result {
+            Ok(d) => (Some(d), None),
+            Err(why) => {
+                tracing::debug!(reason = %why, "outlet refused by verification");
+                (None, Some(why))
+            }
+        }
+    }
+
+    /// [`Self::refine`] of the hashing's reading, or else of its half turn.
+    fn refine_either(
+        &self,
+        grey: &GrayImage,
+        lens: &Lens,
+        transform: &Matrix3<f64>,
+        guesses: &[Option<Point2<f64>>],
+        score: usize,
+    ) -> Result<Detection, String> {
+        self.refine(grey, lens, transform, guesses, score).or_else(|why| {
+            // Hashing leaves a duplex's two readings of the same power holes
+            // to the image: the half-turned one, if its ground holes say so.
+            let Some((c, image)) = self.table.half_turn() else { return Err(why) };
+            let turn = Matrix3::new(-1.0, 0.0, 2.0 * c.x, 0.0, -1.0, 2.0 * c.y, 0.0, 0.0, 1.0);
+            let turned: Vec<Option<Point2<f64>>> =
+                image.iter().map(|k| k.and_then(|k| guesses.get(k).copied().flatten())).collect();
+            self.refine(grey, lens, &(transform * turn), &turned, score)
+                .map_err(|turned_why| format!("{why}; half-turned: {turned_why}"))
+        })
+    }
+}
+
+/// Distortion on the way in and out of the geometric stages.
+struct Lens<'a> {
+    camera: Option<&'a CameraModel>,
+}
+
+impl Lens<'_> {
+    /// Undistorted pixel (same intrinsics, no distortion) of a captured pixel.
+    fn undistort(&self, p: Point2<f64>) -> Point2<f64> {
+        match self.camera {
+            Some(c) if !c.is_rectified() => {
+                let n = c.undistort_pixel(p);
+                Point2::new(c.fx * n.x + c.cx, c.fy * n.y + c.cy)
+            }
+            _ => p,
+        }
+    }
+
+    fn distort(&self, p: Point2<f64>) -> Point2<f64> {
+        match self.camera {
+            Some(c) if !c.is_rectified() => {
+                let d = c.distort_normalized(Vector2::new((p.x - c.cx) / c.fx, (p.y - c.cy) / c.fy));
+                Point2::new(c.fx * d.x + c.cx, c.fy * d.y + c.cy)
+            }
+            _ => p,
+        }
+    }
+}
+
+fn centroid(points: &[Point2<f64>]) -> Point2<f64> {
+    Point2::from(points.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / points.len().max(1) as f64)
+}
+
+pub use outlet_protocol::math::apply_homography as apply;
+
+/// d(captured pixel)/d(template mm) at a template point.
+fn local_jacobian(h: &Matrix3<f64>, lens: &Lens, t: &Point2<f64>) -> Option<Matrix2<f64>> {
+    let at = |dx: f64, dy: f64| apply(h, &Point2::new(t.x + dx, t.y + dy)).map(|q| lens.distort(q));
+    let (xp, xm, yp, ym) = (at(0.5, 0.0)?, at(-0.5, 0.0)?, at(0.0, 0.5)?, at(0.0, -0.5)?);
+    Some(Matrix2::new(xp.x - xm.x, yp.x - ym.x, xp.y - xm.y, yp.y - ym.y))
+}
+
+pub use outlet_protocol::math::fit_homography;
