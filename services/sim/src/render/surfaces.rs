@@ -1,16 +1,11 @@
-//! The renderer: every pixel's ray is cast onto the planes of the wall, the plates
-//! and the receptacle faces (exact perspective, distortion included), shaded with a
-//! point light, then blurred, exposed, given sensor noise and gamma.
-//!
-//! Anti-aliasing is adaptive: a pixel is shaded once where its four corners and its
-//! centre see the same surface and no thin feature (crack, screw slot, spot) is
-//! near, else with 3x3 samples. That keeps a 640x480 frame in a few milliseconds.
+//! The scene's surfaces as the inner loop sees them: the rays' hits on the wall,
+//! the plates and the receptacle faces, and their shading.
 
+use super::{PixelLight, Ray};
 use crate::rng::SimRng;
 use crate::scene::{Crack, Insert, Plate, Rgb, Scene};
 use crate::shapes::{FaceShape, Opening, box_sd, face_sd, segment_distance};
-use image::RgbImage;
-use nalgebra::{Matrix3, Point2, Point3, Vector3};
+use nalgebra::{Matrix3, Point3, Vector3};
 
 /// Depth of a receptacle opening behind the face (mm).
 const HOLE_DEPTH_MM: f64 = 7.0;
@@ -26,38 +21,9 @@ const TOGGLE_OPENING_HALF_MM: [f64; 2] = [5.15, 11.9];
 const TOGGLE_LEVER_HALF_MM: [f64; 2] = [3.2, 6.5];
 /// Rocker (Decora) switch, half sizes (mm).
 const ROCKER_HALF_MM: [f64; 2] = [16.65, 33.35];
-/// Spacing of the coarse grid on which distortion is inverted exactly (pixels).
-const UNDISTORT_GRID_PX: usize = 4;
-/// Supersamples per side where a pixel straddles an edge.
-const SUPERSAMPLE: usize = 3;
-
-/// A rendered camera frame.
-#[derive(Debug, Clone)]
-pub struct Frame {
-    /// The picture as a camera delivers it (after JPEG if the sensor compresses).
-    pub image: RgbImage,
-    /// The JPEG bytes when the sensor compresses: what `outlet render` writes.
-    pub jpeg: Option<Vec<u8>>,
-}
-
-/// A ray through the outlet frame: its point on the face plane z = 0 and its
-/// lateral shift per mm of depth, so that the point at depth z is `p0 + z * slope`.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct Ray {
-    p0: [f64; 2],
-    slope: [f64; 2],
-}
-
-impl Ray {
-    #[inline]
-    pub(crate) fn at(&self, z: f64) -> [f64; 2] {
-        [self.p0[0] + z * self.slope[0], self.p0[1] + z * self.slope[1]]
-    }
-}
-
 /// How a surface sample takes its light.
 #[derive(Debug, Clone, Copy)]
-enum Lit {
+pub(super) enum Lit {
     /// Flat, facing out of the wall; `shadow` says whose cast shadow can fall on it.
     Flat { shadow: ShadowOn },
     /// A tilted surface with its own normal (outlet frame, unit).
@@ -67,7 +33,7 @@ enum Lit {
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum ShadowOn {
+pub(super) enum ShadowOn {
     /// The receptacle faces and raised parts: nothing shades them but occluders.
     Raised,
     /// A plate top, which the faces standing on it can shade.
@@ -77,13 +43,13 @@ enum ShadowOn {
 }
 
 #[derive(Debug, Clone, Copy)]
-struct Hit {
+pub(super) struct Hit {
     /// Which surface: equal ids on a pixel's corners mean one shading suffices.
-    id: u32,
-    albedo: Rgb,
-    lit: Lit,
-    gloss: f32,
-    shininess: f32,
+    pub(super) id: u32,
+    pub(super) albedo: Rgb,
+    pub(super) lit: Lit,
+    pub(super) gloss: f32,
+    pub(super) shininess: f32,
 }
 
 /// The scene in the form the inner loop wants: everything in outlet mm.
@@ -97,7 +63,7 @@ pub(crate) struct Prepared<'a> {
     light_power: f64,
     texture: Vec<f32>,
     /// Image-space boxes around thin features that need supersampling.
-    thin_boxes: Vec<[f64; 4]>,
+    pub(super) thin_boxes: Vec<[f64; 4]>,
 }
 
 const TEXTURE_SIZE: usize = 256;
@@ -200,7 +166,7 @@ impl<'a> Prepared<'a> {
     }
 
     /// The first surface a ray meets.
-    fn hit(&self, ray: &Ray) -> Hit {
+    pub(super) fn hit(&self, ray: &Ray) -> Hit {
         let p0 = ray.at(0.0);
         let pw = ray.at(self.scene.wall_z_mm);
         for (index, plate) in self.scene.plates.iter().enumerate() {
@@ -579,7 +545,7 @@ impl<'a> Prepared<'a> {
 
     /// Radiance of one sample given the pixel's light.
     #[inline]
-    fn shade(
+    pub(super) fn shade(
         &self,
         hit: &Hit,
         light: &PixelLight,
@@ -614,7 +580,7 @@ impl<'a> Prepared<'a> {
     }
 
     /// Light at a pixel's centre, shared by its samples.
-    fn pixel_light(&self, ray: &Ray) -> PixelLight {
+    pub(super) fn pixel_light(&self, ray: &Ray) -> PixelLight {
         let p = ray.at(0.0);
         let point = Point3::new(p[0], p[1], 0.0);
         let to_light = self.light_mm - point;
@@ -633,15 +599,6 @@ impl<'a> Prepared<'a> {
             occlusion: self.occlusion(p),
         }
     }
-}
-
-struct PixelLight {
-    dir: [f32; 3],
-    irradiance: f32,
-    diffuse_flat: f32,
-    /// Cosine between the surface normal and the half vector (Blinn-Phong).
-    nh: f32,
-    occlusion: f32,
 }
 
 #[inline]
@@ -665,7 +622,7 @@ fn rim_direction(x: f64, y: f64, shape: &FaceShape) -> [f64; 2] {
 }
 
 #[inline]
-fn scale(c: Rgb, k: f32) -> Rgb {
+pub(super) fn scale(c: Rgb, k: f32) -> Rgb {
     [c[0] * k, c[1] * k, c[2] * k]
 }
 
@@ -700,310 +657,4 @@ fn wall_texture(seed: u64, grain: f32) -> Vec<f32> {
         }
     }
     texture
-}
-
-/// Normalised undistorted coordinates of pixel corners, exact on a coarse grid and
-/// bilinear between (the distortion map is smooth: the error is ~1e-3 px).
-pub(crate) struct UndistortGrid {
-    cols: usize,
-    rows: usize,
-    xy: Vec<[f64; 2]>,
-}
-
-impl UndistortGrid {
-    pub(crate) fn new(camera: &outlet_protocol::CameraModel) -> Self {
-        let g = UNDISTORT_GRID_PX;
-        let cols = (camera.width as usize).div_ceil(g) + 2;
-        let rows = (camera.height as usize).div_ceil(g) + 2;
-        let mut xy = Vec::with_capacity(cols * rows);
-        for j in 0..rows {
-            for i in 0..cols {
-                let n = camera.undistort_pixel(Point2::new((i * g) as f64 - 0.5, (j * g) as f64 - 0.5));
-                xy.push([n.x, n.y]);
-            }
-        }
-        Self { cols, rows, xy }
-    }
-
-    /// At the pixel coordinates `(u, v)` (with u = -0.5 the left image edge).
-    #[inline]
-    pub(crate) fn at(&self, u: f64, v: f64) -> [f64; 2] {
-        let (j, tv) = self.cell(v, self.rows);
-        let (i, tu) = self.cell(u, self.cols);
-        let a = self.xy[j * self.cols + i];
-        let b = self.xy[j * self.cols + i + 1];
-        let c = self.xy[(j + 1) * self.cols + i];
-        let d = self.xy[(j + 1) * self.cols + i + 1];
-        let mut out = [0.0; 2];
-        for k in 0..2 {
-            out[k] = (a[k] * (1.0 - tu) + b[k] * tu) * (1.0 - tv) + (c[k] * (1.0 - tu) + d[k] * tu) * tv;
-        }
-        out
-    }
-
-    #[inline]
-    fn cell(&self, x: f64, n: usize) -> (usize, f64) {
-        let g = ((x + 0.5) / UNDISTORT_GRID_PX as f64).max(0.0);
-        let i = (g as usize).min(n - 2);
-        (i, g - i as f64)
-    }
-
-    /// Every value along the row `v`, at `u = u0 + k` for k in 0..n.
-    pub(crate) fn row(&self, v: f64, u0: f64, n: usize) -> Vec<[f64; 2]> {
-        let (j, tv) = self.cell(v, self.rows);
-        let coarse: Vec<[f64; 2]> = (0..self.cols)
-            .map(|i| {
-                let (a, c) = (self.xy[j * self.cols + i], self.xy[(j + 1) * self.cols + i]);
-                [a[0] + (c[0] - a[0]) * tv, a[1] + (c[1] - a[1]) * tv]
-            })
-            .collect();
-        (0..n)
-            .map(|k| {
-                let (i, tu) = self.cell(u0 + k as f64, self.cols);
-                let (a, b) = (coarse[i], coarse[i + 1]);
-                [a[0] + (b[0] - a[0]) * tu, a[1] + (b[1] - a[1]) * tu]
-            })
-            .collect()
-    }
-}
-
-/// Pixel columns between exact light evaluations along a row: light varies slowly
-/// across the wall, so it is interpolated between them.
-const LIGHT_STEP_PX: usize = 4;
-
-impl PixelLight {
-    fn lerp(a: &PixelLight, b: &PixelLight, t: f32) -> PixelLight {
-        let m = |x: f32, y: f32| x + (y - x) * t;
-        PixelLight {
-            dir: [m(a.dir[0], b.dir[0]), m(a.dir[1], b.dir[1]), m(a.dir[2], b.dir[2])],
-            irradiance: m(a.irradiance, b.irradiance),
-            diffuse_flat: m(a.diffuse_flat, b.diffuse_flat),
-            nh: m(a.nh, b.nh),
-            occlusion: m(a.occlusion, b.occlusion),
-        }
-    }
-}
-
-/// Linear radiance of every pixel, RGB interleaved, before the sensor.
-pub(crate) fn render_radiance(scene: &Scene, prepared: &Prepared, grid: &UndistortGrid) -> Vec<f32> {
-    let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
-    let mut out = vec![0.0f32; w * h * 3];
-    let background = Hit { id: u32::MAX, albedo: [0.05; 3], lit: Lit::Inside, gloss: 0.0, shininess: 1.0 };
-    let ray_at = |u: f64, v: f64| {
-        let n = grid.at(u, v);
-        prepared.ray(n[0], n[1])
-    };
-    let corner_row = |v: f64| -> Vec<(Option<Ray>, Hit)> {
-        grid.row(v, -0.5, w + 1)
-            .into_iter()
-            .map(|n| {
-                let r = prepared.ray(n[0], n[1]);
-                (r, r.as_ref().map_or(background, |r| prepared.hit(r)))
-            })
-            .collect()
-    };
-    let mut top = corner_row(-0.5);
-    let mut thin_row = vec![false; w];
-    let mut lights: Vec<Option<PixelLight>> = Vec::new();
-    for y in 0..h {
-        let bottom = corner_row(y as f64 + 0.5);
-        thin_row.iter_mut().for_each(|t| *t = false);
-        for b in &prepared.thin_boxes {
-            if (y as f64) < b[1] || (y as f64) > b[3] {
-                continue;
-            }
-            let (x0, x1) = (b[0].max(0.0) as usize, (b[2].max(0.0) as usize).min(w.saturating_sub(1)));
-            for t in thin_row.iter_mut().take(x1 + 1).skip(x0) {
-                *t = true;
-            }
-        }
-        lights.clear();
-        lights.extend(
-            (0..w.div_ceil(LIGHT_STEP_PX) + 1)
-                .map(|k| ray_at((k * LIGHT_STEP_PX) as f64, y as f64).map(|r| prepared.pixel_light(&r))),
-        );
-        for x in 0..w {
-            let corners = [&top[x], &top[x + 1], &bottom[x], &bottom[x + 1]];
-            let (k, t) = (x / LIGHT_STEP_PX, (x % LIGHT_STEP_PX) as f32 / LIGHT_STEP_PX as f32);
-            let centre = match (corners[0].0, corners[1].0, corners[2].0, corners[3].0) {
-                (Some(a), Some(b), Some(c), Some(d)) => Some(Ray {
-                    p0: [(a.p0[0] + b.p0[0] + c.p0[0] + d.p0[0]) / 4.0, (a.p0[1] + b.p0[1] + c.p0[1] + d.p0[1]) / 4.0],
-                    slope: [
-                        (a.slope[0] + b.slope[0] + c.slope[0] + d.slope[0]) / 4.0,
-                        (a.slope[1] + b.slope[1] + c.slope[1] + d.slope[1]) / 4.0,
-                    ],
-                }),
-                _ => ray_at(x as f64, y as f64),
-            };
-            let (Some(centre), Some(l0), Some(l1)) = (centre, &lights[k], &lights[k + 1]) else {
-                out[(y * w + x) * 3..][..3].copy_from_slice(&background.albedo);
-                continue;
-            };
-            let light = PixelLight::lerp(l0, l1, t);
-            let id = corners[0].1.id;
-            let uniform = !thin_row[x] && corners.iter().all(|c| c.1.id == id);
-            let (mut wall_shadow, mut plate_shadow) = (None, None);
-            let px = if uniform {
-                // One shading with the corners' mean reflectance.
-                let mut hit = corners[0].1;
-                for c in &corners[1..] {
-                    for (a, b) in hit.albedo.iter_mut().zip(c.1.albedo) {
-                        *a += b;
-                    }
-                }
-                hit.albedo = scale(hit.albedo, 0.25);
-                prepared.shade(&hit, &light, &centre, &mut wall_shadow, &mut plate_shadow)
-            } else {
-                let mut sum = [0.0f32; 3];
-                let n = SUPERSAMPLE as f64;
-                for sj in 0..SUPERSAMPLE {
-                    for si in 0..SUPERSAMPLE {
-                        let u = x as f64 - 0.5 + (si as f64 + 0.5) / n;
-                        let v = y as f64 - 0.5 + (sj as f64 + 0.5) / n;
-                        let c = match ray_at(u, v) {
-                            Some(ray) => {
-                                let hit = prepared.hit(&ray);
-                                prepared.shade(&hit, &light, &ray, &mut wall_shadow, &mut plate_shadow)
-                            }
-                            None => background.albedo,
-                        };
-                        sum = [sum[0] + c[0], sum[1] + c[1], sum[2] + c[2]];
-                    }
-                }
-                scale(sum, 1.0 / (SUPERSAMPLE * SUPERSAMPLE) as f32)
-            };
-            out[(y * w + x) * 3..][..3].copy_from_slice(&px);
-        }
-        top = bottom;
-    }
-    out
-}
-
-/// Separable Gaussian blur of interleaved RGB, in place (edges clamped). The
-/// loops run over whole padded rows so that they vectorise.
-fn blur(buf: &mut [f32], w: usize, h: usize, sigma: f32) {
-    let radius = (3.0 * sigma).ceil() as usize;
-    let mut kernel: Vec<f32> = (0..=2 * radius)
-        .map(|i| {
-            let d = i as f32 - radius as f32;
-            (-(d * d) / (2.0 * sigma * sigma)).exp()
-        })
-        .collect();
-    let total: f32 = kernel.iter().sum();
-    kernel.iter_mut().for_each(|k| *k /= total);
-    let stride = w * 3;
-    let mut padded = vec![0.0f32; (w + 2 * radius) * 3];
-    for y in 0..h {
-        let row = &mut buf[y * stride..(y + 1) * stride];
-        for k in 0..radius {
-            padded[k * 3..k * 3 + 3].copy_from_slice(&row[..3]);
-            let tail = (radius + w + k) * 3;
-            padded[tail..tail + 3].copy_from_slice(&row[stride - 3..]);
-        }
-        padded[radius * 3..(radius + w) * 3].copy_from_slice(row);
-        row.iter_mut().for_each(|v| *v = 0.0);
-        for (j, &kj) in kernel.iter().enumerate() {
-            for (o, &i) in row.iter_mut().zip(&padded[j * 3..j * 3 + stride]) {
-                *o += kj * i;
-            }
-        }
-    }
-    let source = buf.to_vec();
-    for y in 0..h {
-        let row = &mut buf[y * stride..(y + 1) * stride];
-        row.iter_mut().for_each(|v| *v = 0.0);
-        for (j, &kj) in kernel.iter().enumerate() {
-            let sy = (y + j).saturating_sub(radius).min(h - 1);
-            for (o, &i) in row.iter_mut().zip(&source[sy * stride..(sy + 1) * stride]) {
-                *o += kj * i;
-            }
-        }
-    }
-}
-
-/// Exposure, sensor noise, clipping and gamma: radiance to 8-bit pixels.
-fn expose(radiance: &[f32], scene: &Scene) -> Vec<u8> {
-    const LUT_SIZE: usize = 4096;
-    let sensor = &scene.sensor;
-    let lut: Vec<u8> = (0..LUT_SIZE)
-        .map(|i| ((i as f32 / (LUT_SIZE - 1) as f32).powf(1.0 / sensor.gamma) * 255.0 + 0.5) as u8)
-        .collect();
-    let mut rng = SimRng::new(scene.noise_seed);
-    let sqrt3 = 3.0f32.sqrt();
-    // Noise per channel; its sigma from the pixel's mean level (one square root
-    // per pixel, not per channel).
-    let mut out = Vec::with_capacity(radiance.len());
-    for px in radiance.chunks_exact(3) {
-        let v = [px[0] * sensor.exposure, px[1] * sensor.exposure, px[2] * sensor.exposure];
-        let level = ((v[0] + v[1] + v[2]) * (1.0 / 3.0)).max(0.0);
-        let sigma = (sensor.read_noise * sensor.read_noise + sensor.shot_noise * level).sqrt();
-        for c in v {
-            // Sum of four 16-bit uniforms: close to a Gaussian and four times cheaper.
-            let bits = rng.next_u64();
-            let sum = (bits & 0xFFFF) + ((bits >> 16) & 0xFFFF) + ((bits >> 32) & 0xFFFF) + (bits >> 48);
-            let gauss = (sum as f32 / 65536.0 - 2.0) * sqrt3;
-            let v = (c + sigma * gauss).clamp(0.0, 1.0);
-            out.push(lut[(v * (LUT_SIZE - 1) as f32) as usize]);
-        }
-    }
-    out
-}
-
-/// Renders the camera image of a scene.
-pub fn render(scene: &Scene) -> Frame {
-    let prepared = Prepared::new(scene);
-    let grid = UndistortGrid::new(&scene.camera);
-    render_with(scene, &prepared, &grid)
-}
-
-pub(crate) fn render_with(scene: &Scene, prepared: &Prepared, grid: &UndistortGrid) -> Frame {
-    let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
-    let mut radiance = render_radiance(scene, prepared, grid);
-    if scene.sensor.blur_sigma >= 0.3 {
-        blur(&mut radiance, w, h, scene.sensor.blur_sigma);
-    }
-    let bytes = expose(&radiance, scene);
-    let image = RgbImage::from_raw(scene.camera.width, scene.camera.height, bytes)
-        .unwrap_or_else(|| RgbImage::new(scene.camera.width, scene.camera.height));
-    match scene.sensor.jpeg_quality {
-        Some(q) => {
-            let mut jpeg = Vec::new();
-            let encoded = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, q).encode_image(&image);
-            let decoded = encoded
-                .ok()
-                .and_then(|_| image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg).ok())
-                .map(|d| d.to_rgb8());
-            match decoded {
-                Some(decoded) => Frame { image: decoded, jpeg: Some(jpeg) },
-                None => Frame { image, jpeg: None },
-            }
-        }
-        None => Frame { image, jpeg: None },
-    }
-}
-
-/// Milliseconds spent in each stage of one frame: undistortion grid, ray casting,
-/// blur, exposure, JPEG. For profiling; `render` is what to call.
-pub fn phase_times(scene: &Scene) -> [(&'static str, f64); 5] {
-    let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
-    let t = std::time::Instant::now();
-    let prepared = Prepared::new(scene);
-    let grid = UndistortGrid::new(&scene.camera);
-    let t_grid = t.elapsed().as_secs_f64() * 1e3;
-    let t = std::time::Instant::now();
-    let mut radiance = render_radiance(scene, &prepared, &grid);
-    let t_cast = t.elapsed().as_secs_f64() * 1e3;
-    let t = std::time::Instant::now();
-    blur(&mut radiance, w, h, scene.sensor.blur_sigma.max(0.8));
-    let t_blur = t.elapsed().as_secs_f64() * 1e3;
-    let t = std::time::Instant::now();
-    let bytes = expose(&radiance, scene);
-    let t_expose = t.elapsed().as_secs_f64() * 1e3;
-    let t = std::time::Instant::now();
-    let image = RgbImage::from_raw(scene.camera.width, scene.camera.height, bytes).unwrap_or_default();
-    let mut jpeg = Vec::new();
-    let _ = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 80).encode_image(&image);
-    let _ = image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg);
-    let t_jpeg = t.elapsed().as_secs_f64() * 1e3;
-    [("grid", t_grid), ("cast", t_cast), ("blur", t_blur), ("expose", t_expose), ("jpeg", t_jpeg)]
 }
