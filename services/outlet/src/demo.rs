@@ -497,6 +497,19 @@ fn print_result(out: &mut impl Write, r: &ResultLine) -> std::io::Result<()> {
     Ok(())
 }
 
+/// The chi-square 99.9% point with 3 degrees of freedom.
+const CHI2_3_999: f64 = 16.266;
+
+/// The mean of `nees` over 3 (1 where the covariances are honest) and the share
+/// beyond [`CHI2_3_999`] (0.001 where they are); NaN and 0 without values.
+fn nees_summary(nees: &[f64]) -> (f64, f64) {
+    if nees.is_empty() {
+        return (f64::NAN, 0.0);
+    }
+    let n = nees.len() as f64;
+    (nees.iter().sum::<f64>() / n / 3.0, nees.iter().filter(|v| **v > CHI2_3_999).count() as f64 / n)
+}
+
 #[derive(Debug, Default)]
 struct Summary {
     frames: u64,
@@ -506,6 +519,8 @@ struct Summary {
     ambiguous: u64,
     plane_mismatch: u64,
     errors_mm: Vec<f64>,
+    /// Each hole's `e^T C^-1 e` (3 degrees of freedom): whether the error bars hold.
+    nees: Vec<f64>,
     latencies_ms: Vec<f64>,
     latency_over_detection_ms: Vec<f64>,
 }
@@ -520,6 +535,7 @@ impl Summary {
         self.plane_mismatch += (r.status == "plane_mismatch") as u64;
         if self.errors_mm.len() < KEEP {
             self.errors_mm.extend(r.holes.iter().filter_map(|h| h.error_mm));
+            self.nees.extend(r.holes.iter().filter_map(|h| h.error_sigmas).map(|s| s * s));
         }
         if self.latencies_ms.len() < KEEP {
             self.latencies_ms.push(r.latency_ms);
@@ -538,10 +554,12 @@ impl Summary {
             v[((v.len() as f64 * p).ceil() as usize).clamp(1, v.len()) - 1]
         };
         let rms = (self.errors_mm.iter().map(|e| e * e).sum::<f64>() / self.errors_mm.len().max(1) as f64).sqrt();
+        let (nees_mean, nees_beyond) = nees_summary(&self.nees);
         eprintln!(
             "outlet demo: {:.1} s, {} frames ({} with an outlet), {} results, {} false alarms \
              (a hole beyond 3 mm or 5 sigma, or no outlet), {} without a pose ({} ambiguous, {} plane mismatch); \
-             hole error RMS {:.3} mm, p95 {:.3} mm; latency p50 {:.1} ms, p99 {:.1} ms; \
+             hole error RMS {:.3} mm, p95 {:.3} mm; error bars: mean e^T C^-1 e {:.2} x 3, {:.2}% of holes beyond \
+             the chi-square 99.9% point (honest: 1 x 3, 0.1%); latency p50 {:.1} ms, p99 {:.1} ms; \
              latency beyond detection p50 {:.2} ms, p99 {:.2} ms",
             seconds,
             self.frames,
@@ -553,10 +571,26 @@ impl Summary {
             self.plane_mismatch,
             rms,
             q(&mut self.errors_mm, 0.95),
+            nees_mean,
+            nees_beyond * 100.0,
             q(&mut self.latencies_ms, 0.5),
             q(&mut self.latencies_ms, 0.99),
             q(&mut self.latency_over_detection_ms, 0.5),
             q(&mut self.latency_over_detection_ms, 0.99),
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_error_bars_summary_is_the_mean_over_three_and_the_share_beyond_the_999_point() {
+        let (mean, beyond) = nees_summary(&[3.0, 3.0, 3.0, 30.0]);
+        assert!((mean - 39.0 / 4.0 / 3.0).abs() < 1e-12);
+        assert!((beyond - 0.25).abs() < 1e-12);
+        let (mean, beyond) = nees_summary(&[]);
+        assert!(mean.is_nan() && beyond == 0.0);
     }
 }
