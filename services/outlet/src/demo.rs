@@ -497,17 +497,13 @@ fn print_result(out: &mut impl Write, r: &ResultLine) -> std::io::Result<()> {
     Ok(())
 }
 
-/// The chi-square 99.9% point with 3 degrees of freedom.
-const CHI2_3_999: f64 = 16.266;
-
 /// The mean of `nees` over 3 (1 where the covariances are honest) and the share
-/// beyond [`CHI2_3_999`] (0.001 where they are); NaN and 0 without values.
+/// beyond the chi-square 99.9% point (0.001 where they are); NaN and 0 without values.
 fn nees_summary(nees: &[f64]) -> (f64, f64) {
     if nees.is_empty() {
         return (f64::NAN, 0.0);
     }
-    let n = nees.len() as f64;
-    (nees.iter().sum::<f64>() / n / 3.0, nees.iter().filter(|v| **v > CHI2_3_999).count() as f64 / n)
+    (crate::nees::mean_over_dof(nees), crate::nees::beyond_999(nees))
 }
 
 #[derive(Debug, Default)]

@@ -20,6 +20,17 @@ pub const NEES_HARD_LIMIT: f64 = 25.0;
 /// Wall normal noise of the `normal` mode (radians): 1 degree, as `outlet eval`.
 pub const NORMAL_NOISE_RAD: f64 = 0.017;
 
+/// The mean of NEES values over their 3 degrees of freedom (1 if honest; 0
+/// without values).
+pub fn mean_over_dof(nees: &[f64]) -> f64 {
+    nees.iter().sum::<f64>() / nees.len().max(1) as f64 / 3.0
+}
+
+/// The share of NEES values beyond [`CHI2_3_999`] (0.001 if honest; 0 without values).
+pub fn beyond_999(nees: &[f64]) -> f64 {
+    nees.iter().filter(|v| **v > CHI2_3_999).count() as f64 / nees.len().max(1) as f64
+}
+
 /// The pose modes evaluated, in table order.
 pub const MODES: [&str; 3] = ["plane", "normal", "mono"];
 
@@ -63,11 +74,11 @@ impl ModeStats {
     }
 
     pub fn mean_over_dof(&self) -> f64 {
-        self.nees.iter().sum::<f64>() / self.nees.len().max(1) as f64 / 3.0
+        mean_over_dof(&self.nees)
     }
 
     pub fn beyond_999(&self) -> f64 {
-        self.nees.iter().filter(|v| **v > CHI2_3_999).count() as f64 / self.nees.len().max(1) as f64
+        beyond_999(&self.nees)
     }
 
     pub fn max(&self) -> f64 {

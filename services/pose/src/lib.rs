@@ -245,7 +245,9 @@ pub const OWN_NOISE_SHARE: f64 = 0.8;
 /// mono depth was 10 mm off, reached a NEES of 27 against issue 14's 25).
 pub const MONO_OWN_NOISE_SHARE: f64 = 0.87;
 
-pub(crate) fn rays(obs: &Observations, needed: usize, mode: &'static str) -> Result<Rays, PoseError> {
+/// The holes as normalised rays, each hole's own noise at `share` of its sigma
+/// ([`OWN_NOISE_SHARE`], [`MONO_OWN_NOISE_SHARE`], 1 for a bound).
+pub(crate) fn rays(obs: &Observations, needed: usize, mode: &'static str, share: f64) -> Result<Rays, PoseError> {
     let n = obs.model_mm.len();
     if n != obs.pixels.len() {
         return Err(PoseError::CountMismatch { model: n, pixels: obs.pixels.len() });
@@ -264,11 +266,7 @@ pub(crate) fn rays(obs: &Observations, needed: usize, mode: &'static str) -> Res
         model: Vec::with_capacity(n),
         sigma: Vec::with_capacity(n),
         px_to_xy: Vec::with_capacity(n),
-        share: match mode {
-            "mono" => MONO_OWN_NOISE_SHARE,
-            "bound" => 1.0,
-            _ => OWN_NOISE_SHARE,
-        },
+        share,
     };
     for (index, (m, p)) in obs.model_mm.iter().zip(obs.pixels).enumerate() {
         if !(m.x.is_finite() && m.y.is_finite() && p.x.is_finite() && p.y.is_finite()) {
@@ -378,7 +376,7 @@ fn scaled(covariances: Vec<Matrix3<f64>>, factor: f64) -> Vec<Matrix3<f64>> {
 /// pose is then the maximum-likelihood one of the others with the normal as a
 /// prior, started from their closed form.
 pub fn solve_normal(obs: &Observations, normal: &Vector3<f64>, normal_sigma_rad: f64) -> Result<OutletPose, PoseError> {
-    let mut rays = rays(obs, 2, "normal")?;
+    let mut rays = rays(obs, 2, "normal", OWN_NOISE_SHARE)?;
     let n = orient_normal(normal, &rays.xy)?;
     let sigma = normal_sigma_rad.max(0.0);
     let pose = closed_form_normal(&rays.model, &rays.xy, &n).ok_or(PoseError::Collinear)?;
@@ -431,7 +429,7 @@ pub fn solve_normal(obs: &Observations, normal: &Vector3<f64>, normal_sigma_rad:
 ///
 /// Holes the solution cannot explain are dropped (see [`OUTLIER_CHI2`]).
 pub fn solve_plane(obs: &Observations, plane: &PlaneMeasurement) -> Result<OutletPose, PoseError> {
-    let mut rays = rays(obs, 2, "plane")?;
+    let mut rays = rays(obs, 2, "plane", OWN_NOISE_SHARE)?;
     let finite = plane.distance_m.is_finite()
         && plane.face_offset_m.is_finite()
         && plane.covariance.iter().all(|v| v.is_finite())
@@ -500,7 +498,7 @@ pub const MONO_AMBIGUITY_LLR: f64 = 13.8;
 /// rather than a coin toss with a small covariance. Outliers are dropped as in
 /// [`solve_plane`].
 pub fn solve_mono(obs: &Observations) -> Result<OutletPose, PoseError> {
-    let mut rays = rays(obs, 4, "mono")?;
+    let mut rays = rays(obs, 4, "mono", MONO_OWN_NOISE_SHARE)?;
     check_not_collinear(&rays.model)?;
     let solve = |r: &Rays, kept: &[bool]| -> Option<(mono::Solution, Option<mono::Solution>)> {
         if kept.iter().all(|k| *k) {
@@ -622,7 +620,7 @@ pub fn cramer_rao(
     plane: Option<&PlaneMeasurement>,
     normal_only_sigma_rad: Option<f64>,
 ) -> Result<Vec<Matrix3<f64>>, PoseError> {
-    let rays = rays(obs, 2, "bound")?;
+    let rays = rays(obs, 2, "bound", 1.0)?;
     let n = truth.rotation * Vector3::z();
     let d = n.dot(&truth.translation.vector);
     let prior = match (plane, normal_only_sigma_rad) {

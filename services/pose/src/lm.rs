@@ -55,28 +55,32 @@ fn linearise(rays: &Rays, pose: &Isometry3<f64>, prior: Option<&Prior>) -> Optio
         }
     }
     if let Some(prior) = prior {
-        let n = r * Vector3::z();
-        let t = pose.translation.vector;
-        let dn = n - prior.normal;
-        let raw = Vector3::new(prior.tangent[0].dot(&dn), prior.tangent[1].dot(&dn), n.dot(&t) - prior.distance_m);
-        let mut raw_j = SMatrix::<f64, 3, 6>::zeros();
-        for k in 0..2 {
-            let g = n.cross(&prior.tangent[k]);
-            raw_j.fixed_view_mut::<1, 3>(k, 0).copy_from(&g.transpose());
-        }
-        if prior.with_distance {
-            raw_j.fixed_view_mut::<1, 3>(2, 0).copy_from(&n.cross(&t).transpose());
-            raw_j.fixed_view_mut::<1, 3>(2, 3).copy_from(&n.transpose());
-        }
-        let raw = if prior.with_distance { raw } else { Vector3::new(raw.x, raw.y, 0.0) };
-        let e = prior.whiten * raw;
-        let j = prior.whiten * raw_j;
+        let (e, j) = prior_rows(prior, pose);
         for k in 0..3 {
             res.push(e[k]);
             jac.push(j.row(k).into_owned());
         }
     }
     Some((res, jac))
+}
+
+/// The prior's whitened residual and its Jacobian at a pose (three rows).
+fn prior_rows(prior: &Prior, pose: &Isometry3<f64>) -> (Vector3<f64>, SMatrix<f64, 3, 6>) {
+    let n = pose.rotation.to_rotation_matrix() * Vector3::z();
+    let t = pose.translation.vector;
+    let dn = n - prior.normal;
+    let raw = Vector3::new(prior.tangent[0].dot(&dn), prior.tangent[1].dot(&dn), n.dot(&t) - prior.distance_m);
+    let mut raw_j = SMatrix::<f64, 3, 6>::zeros();
+    for k in 0..2 {
+        let g = n.cross(&prior.tangent[k]);
+        raw_j.fixed_view_mut::<1, 3>(k, 0).copy_from(&g.transpose());
+    }
+    if prior.with_distance {
+        raw_j.fixed_view_mut::<1, 3>(2, 0).copy_from(&n.cross(&t).transpose());
+        raw_j.fixed_view_mut::<1, 3>(2, 3).copy_from(&n.transpose());
+    }
+    let raw = if prior.with_distance { raw } else { Vector3::new(raw.x, raw.y, 0.0) };
+    (prior.whiten * raw, prior.whiten * raw_j)
 }
 
 fn normal_equations(res: &[f64], jac: &[Row]) -> (Matrix6<f64>, Vector6<f64>, f64) {
@@ -157,10 +161,10 @@ pub(crate) fn cost(rays: &Rays, pose: &Isometry3<f64>, prior: Option<&Prior>) ->
 pub(crate) fn with_own_noise(fit: Fit, rays: &Rays, prior: Option<&Prior>) -> Fit {
     let k2 = rays.share.powi(2);
     let c = fit.covariance;
-    let from_prior = prior.and_then(|prior| {
-        let (_, jac) = linearise(rays, &fit.pose, Some(prior))?;
-        let rows = jac.get(2 * rays.model.len()..)?;
-        Some(rows.iter().fold(Matrix6::zeros(), |p, j| p + j.transpose() * j))
+    // The prior's information alone (the pixels' need not be linearised again).
+    let from_prior = prior.map(|prior| {
+        let (_, j) = prior_rows(prior, &fit.pose);
+        j.transpose() * j
     });
     let covariance = match from_prior {
         Some(p) => c * k2 + c * p * c * (1.0 - k2),

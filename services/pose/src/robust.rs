@@ -44,8 +44,8 @@ pub(crate) fn subset(rays: &Rays, kept: &[bool]) -> Rays {
 }
 
 /// The kept holes' cost per degree of freedom over their own noise's share
-/// squared, at least 1: the factor the covariance is scaled by. `fixed` is how many pose parameters the pixels must
-/// determine (6, less what a prior fixes).
+/// squared, at least 1: the factor the covariance is scaled by. `fixed` is how
+/// many pose parameters the pixels must determine (6, less what a prior fixes).
 pub(crate) fn variance_factor(rays: &Rays, pose: &Isometry3<f64>, kept: &[bool], fixed: usize) -> f64 {
     let costs = lm::hole_costs(rays, pose);
     let n = kept.iter().filter(|k| **k).count();
