@@ -25,7 +25,8 @@ pub struct WallPlane {
     pub covariance: Matrix3<f64>,
     /// Two unit vectors in the plane, `(tangent[0], tangent[1], normal)` right-handed.
     pub tangent: [Vector3<f64>; 2],
-    /// Points within the inlier band of the final plane.
+    /// Points within the inlier band of the final plane (of the whole cloud: counted
+    /// in the points fitted, scaled back where the cloud was thinned).
     pub inliers: usize,
     /// RMS plane residual of the inliers (metres).
     pub rms_m: f64,
@@ -130,12 +131,24 @@ pub use outlet_protocol::math::tangent_basis;
 /// Never panics and never returns a non-finite value.
 pub fn fit_wall_plane(points: &[[f32; 3]], params: &PlaneParams) -> Result<WallPlane, PlaneError> {
     params.validate().map_err(PlaneError::InvalidParams)?;
+    let thinned: Vec<[f32; 3]>;
+    // Thinned among the valid points: a sparse cloud (most entries NaN) keeps them all.
+    let all_valid = points.iter().filter(|p| is_valid(p)).count();
+    let stride = all_valid.div_ceil(params.max_points);
+    let points = if stride > 1 {
+        thinned = points.iter().filter(|p| is_valid(p)).step_by(stride).copied().collect();
+        &thinned[..]
+    } else {
+        points
+    };
     let mut rng = SplitMix64::new(params.seed);
     let Cloud { points, valid, sample } = Cloud::new(points, params, &mut rng);
     if valid < params.min_points {
         return Err(PlaneError::TooFewPoints { valid, needed: params.min_points });
     }
-    let no_plane = |best_inliers| PlaneError::NoDominantPlane { best_inliers, valid };
+    // Counts are reported for the whole cloud, thinned or not.
+    let whole = |n: usize| if valid == 0 { n } else { (n as f64 * all_valid as f64 / valid as f64).round() as usize };
+    let no_plane = |best_inliers| PlaneError::NoDominantPlane { best_inliers: whole(best_inliers), valid: all_valid };
     // Every sum is taken about this point, so that the f64 moments keep their digits.
     let origin = sample.iter().fold(Vector3::zeros(), |s, p| s + to_vector(p)) / sample.len() as f64;
     if !origin.iter().all(|v| v.is_finite()) {
@@ -212,8 +225,14 @@ pub fn fit_wall_plane(points: &[[f32; 3]], params: &PlaneParams) -> Result<WallP
     let inliers = sums.inliers;
     let rms_m = (sums.r2 / inliers as f64).sqrt();
 
-    let out =
-        WallPlane { normal: Unit::new_unchecked(plane.n), distance_m: plane.d, covariance, tangent, inliers, rms_m };
+    let out = WallPlane {
+        normal: Unit::new_unchecked(plane.n),
+        distance_m: plane.d,
+        covariance,
+        tangent,
+        inliers: whole(inliers),
+        rms_m,
+    };
     let finite = plane.is_finite()
         && covariance.iter().all(|v| v.is_finite())
         && (0..3).all(|i| covariance[(i, i)] >= 0.0)

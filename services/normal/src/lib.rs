@@ -17,10 +17,12 @@
 //! assert!((wall.distance_m - 0.4).abs() < 1e-6 && wall.normal.z > 0.999);
 //! ```
 
+mod face;
 mod fit;
 mod moments;
 mod params;
 mod rng;
 
+pub use face::{FaceOffset, FaceParams, measure_face};
 pub use fit::{PlaneError, WallPlane, fit_wall_plane, tangent_basis};
 pub use params::{PlaneParams, REFERENCE_BASELINE_M, REFERENCE_DISPARITY_SIGMA_PX, REFERENCE_FOCAL_PX};

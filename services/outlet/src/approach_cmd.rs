@@ -12,7 +12,6 @@ use crate::plot::{BLUE, DrawResult, Figure, GREEN, LIGHT_GREY, ORANGE};
 use anyhow::{Context, Result};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use outlet_detector::detect::{Detector, DetectorParams};
-use outlet_pose::solve_plane;
 use outlet_protocol::CameraModel;
 use outlet_sim::approach::{ApproachRenderer, seen_from};
 use plotters::coord::Shift;
@@ -197,16 +196,15 @@ fn view(
         let geometry = &detector.template().geometry;
         let holes = outlet::DetectedHoles::new(d, geometry);
         let obs = holes.observations(camera, 0.25);
-        if let Ok(plane) = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default()) {
-            let measurement = outlet::plane_measurement(&plane, geometry, &args.model_error);
-            if let Ok(p) = solve_plane(&obs, &measurement) {
-                plane_mm = p
-                    .holes_cam_m
-                    .iter()
-                    .zip(&truth.holes)
-                    .filter_map(|(h, t)| Some((h - Point3::from(t.position_m?)).norm() * 1e3))
-                    .collect();
-            }
+        if let Ok(plane) = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default())
+            && let Ok((p, _)) = outlet::solve_plane_with_cloud(&obs, &plane, &frame.cloud, geometry, &args.model_error)
+        {
+            plane_mm = p
+                .holes_cam_m
+                .iter()
+                .zip(&truth.holes)
+                .filter_map(|(h, t)| Some((h - Point3::from(t.position_m?)).norm() * 1e3))
+                .collect();
         }
     }
     // Wrong outlets and misses are kept to look at (`outlet detect --camera`

@@ -12,7 +12,7 @@ use outlet_detector::grey_of;
 use outlet_detector::template::{TrainingImage, TrainingOptions, train_template_with};
 use outlet_detector::track::{Searched, TrackParams, Tracker};
 use outlet_normal::{PlaneParams, fit_wall_plane};
-use outlet_pose::{OutletPose, PoseError, solve_mono, solve_normal, solve_plane};
+use outlet_pose::{OutletPose, PoseError, solve_mono, solve_normal};
 use outlet_protocol::camera_info::read_camera_info;
 use outlet_protocol::ply::read_ply;
 use outlet_protocol::truth::PoseJson;
@@ -370,8 +370,7 @@ fn solve_pose(
             let cloud = read_ply(path)?;
             let plane = fit_wall_plane(&cloud, &PlaneParams::default())
                 .with_context(|| format!("fitting the wall to {}", path.display()))?;
-            let measurement = outlet::plane_measurement(&plane, geometry, model_error);
-            solve_plane(&obs, &measurement)?
+            outlet::solve_plane_with_cloud(&obs, &plane, &cloud, geometry, model_error)?.0
         }
         Wall::Unknown => solve_mono(&obs)?,
     };

@@ -330,7 +330,7 @@ fn pose_errors(
     model_error: &outlet::ModelError,
 ) -> PoseErrors {
     use nalgebra::{Point2, Point3, Vector3};
-    use outlet_pose::{Observations, cramer_rao, solve_mono, solve_normal, solve_plane};
+    use outlet_pose::{Observations, cramer_rao, solve_mono, solve_normal};
     let RenderedView { frame, scene, index } = *view;
     let geometry = &detector.template().geometry;
     let model: Vec<Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
@@ -354,9 +354,10 @@ fn pose_errors(
         out.normal = errors(&p.holes_cam_m);
     }
     if let Ok(plane) = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default()) {
-        let measurement = outlet::plane_measurement(&plane, geometry, model_error);
-        if let Ok(p) = solve_plane(&obs, &measurement) {
+        let mut face = None;
+        if let Ok((p, f)) = outlet::solve_plane_with_cloud(&obs, &plane, &frame.cloud, geometry, model_error) {
             out.plane = errors(&p.holes_cam_m);
+            face = f;
         }
         let sigma = plane.covariance[(0, 0)].max(plane.covariance[(1, 1)]).sqrt();
         if let Ok(p) = solve_normal(&obs, &plane.normal, sigma) {
@@ -367,6 +368,7 @@ fn pose_errors(
         let rms = |c: Vec<nalgebra::Matrix3<f64>>| {
             (c.iter().map(|m| m.trace()).sum::<f64>() / c.len().max(1) as f64).sqrt() * 1000.0
         };
+        let measurement = outlet::plane_measurement_with_face(&plane, geometry, model_error, face.as_ref());
         out.bound_plane = cramer_rao(&bound_obs, &scene.pose, Some(&measurement), None).ok().map(rms);
         out.bound_normal = cramer_rao(&bound_obs, &scene.pose, None, Some(NORMAL_NOISE_RAD)).ok().map(rms);
     }

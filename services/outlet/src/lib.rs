@@ -76,6 +76,65 @@ pub fn plane_measurement(
     )
 }
 
+/// [`plane_measurement`] with the receptacle face's offset measured from the
+/// cloud (`face`, ahead of the same fitted plane) where the stereo saw it: the
+/// measurement and the nominal offset (with its `face_offset_sigma_mm`) are
+/// combined by their variances. A nominal taken as exact (sigma 0) stays exact.
+pub fn plane_measurement_with_face(
+    plane: &outlet_normal::WallPlane,
+    geometry: &outlet_protocol::OutletGeometry,
+    model_error: &ModelError,
+    face: Option<&outlet_normal::FaceOffset>,
+) -> outlet_pose::PlaneMeasurement {
+    let nominal_m = geometry.face_offset_mm / 1000.0;
+    let nominal_var = (model_error.face_offset_sigma_mm / 1e3).powi(2);
+    let (offset_m, sigma_m) = match face {
+        Some(f) if nominal_var > 0.0 && f.sigma_m > 0.0 && f.offset_m.is_finite() => {
+            let (wn, wf) = (1.0 / nominal_var, 1.0 / f.sigma_m.powi(2));
+            ((nominal_m * wn + f.offset_m * wf) / (wn + wf), (1.0 / (wn + wf)).sqrt())
+        }
+        _ => (nominal_m, nominal_var.sqrt()),
+    };
+    outlet_pose::PlaneMeasurement {
+        normal: plane.normal,
+        distance_m: plane.distance_m,
+        covariance: plane.covariance,
+        tangent: plane.tangent,
+        face_offset_m: offset_m,
+    }
+    .with_model_error(
+        sigma_m,
+        model_error.plane_tilt_sigma_deg.to_radians(),
+        model_error.plane_distance_sigma_mm / 1e3,
+    )
+}
+
+/// Plane mode from a stereo cloud and the plane fitted to it: solved with the
+/// nominal face, then, where the cloud has points on the face around the holes
+/// that pose puts, solved again with the face's offset as measured there (see
+/// `outlet_normal::measure_face`). Returns the pose and the face measurement
+/// it used, if any.
+pub fn solve_plane_with_cloud(
+    obs: &outlet_pose::Observations,
+    plane: &outlet_normal::WallPlane,
+    cloud: &[[f32; 3]],
+    geometry: &outlet_protocol::OutletGeometry,
+    model_error: &ModelError,
+) -> Result<(outlet_pose::OutletPose, Option<outlet_normal::FaceOffset>), outlet_pose::PoseError> {
+    let first = outlet_pose::solve_plane(obs, &plane_measurement(plane, geometry, model_error))?;
+    if model_error.face_offset_sigma_mm <= 0.0 {
+        return Ok((first, None));
+    }
+    let holes: Vec<nalgebra::Point2<f64>> = geometry.holes.iter().map(|h| h.position()).collect();
+    match outlet_normal::measure_face(cloud, plane, &first.pose, &holes, &outlet_normal::FaceParams::default()) {
+        Some(face) => {
+            let measurement = plane_measurement_with_face(plane, geometry, model_error, Some(&face));
+            outlet_pose::solve_plane(obs, &measurement).map(|pose| (pose, Some(face)))
+        }
+        None => Ok((first, None)),
+    }
+}
+
 /// A detection's holes as the pose solvers take them: the template's hole
 /// positions (mm), the detected pixels and each hole's own sigma from the
 /// detector's fit.

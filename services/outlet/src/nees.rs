@@ -8,7 +8,7 @@
 use anyhow::{Context, Result};
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 use outlet_detector::detect::Detector;
-use outlet_pose::{Observations, OutletPose, PoseError, solve_mono, solve_normal, solve_plane};
+use outlet_pose::{Observations, OutletPose, PoseError, solve_mono, solve_normal};
 use outlet_sim::{render_frame, sample_scene};
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -270,8 +270,8 @@ pub fn evaluate_frame(
     let plane = outlet_normal::fit_wall_plane(&frame.cloud, &outlet_normal::PlaneParams::default());
     match plane {
         Ok(plane) => {
-            let measurement = outlet::plane_measurement(&plane, &geometry, model_error);
-            add("plane", solve_plane(&obs, &measurement));
+            let solved = outlet::solve_plane_with_cloud(&obs, &plane, &frame.cloud, &geometry, model_error);
+            add("plane", solved.map(|(pose, _)| pose));
         }
         Err(_) => add("plane", Err(PoseError::BadPlane)),
     }

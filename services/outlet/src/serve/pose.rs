@@ -4,6 +4,11 @@
 //! time, else `mono`. A plane that cannot explain the holes gives a result
 //! with status `plane_mismatch` and no pose, never a quiet `mono` one; a mono
 //! pose whose mirror explains the pixels as well gives `ambiguous`.
+//!
+//! It also reads the stereo clouds ([`service::CLOUDS`]) in place, holding the
+//! newest one: where the cloud of a plane's frame has points on the receptacle
+//! face around the holes, the face's offset ahead of the plane is measured
+//! there rather than taken as nominal (`outlet::solve_plane_with_cloud`).
 
 use super::{Output, Runtime, clear};
 use anyhow::Result;
@@ -11,9 +16,9 @@ use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 use nalgebra::{Matrix2, Matrix3, Point2, Unit, Vector3};
 use outlet::health::{Health, now_ns};
-use outlet_pose::{Mode, Observations, OutletPose, PlaneMeasurement, PoseError, solve_mono, solve_plane};
+use outlet_pose::{Mode, Observations, OutletPose, PoseError, solve_mono};
 use outlet_protocol::wire::{
-    DetectionMsg, HolePosesMsg, MAX_HOLES, SCHEMA_VERSION, WallPlaneMsg, pose_status, service,
+    CloudHeader, DetectionMsg, HolePosesMsg, MAX_HOLES, SCHEMA_VERSION, WallPlaneMsg, pose_status, service,
 };
 use outlet_protocol::{HoleKind, OutletGeometry, shm};
 use std::collections::VecDeque;
@@ -42,12 +47,18 @@ pub fn run(rt: &Runtime) -> Result<()> {
         .subscriber_builder()
         .create()
         .map_err(|e| anyhow::anyhow!("plane subscriber: {e:?}"))?;
+    let cloud_sub =
+        shm::clouds(&rt.node)?.subscriber_builder().create().map_err(|e| anyhow::anyhow!("cloud subscriber: {e:?}"))?;
     let detection_listener = rt.listener(service::DETECTIONS)?;
     let plane_listener = rt.listener(service::PLANES)?;
+    let cloud_listener = rt.listener(service::CLOUDS)?;
     let output = Output::<HolePosesMsg>::open(rt, service::HOLE_POSES)?;
     let waitset = rt.waitset()?;
     let detections = waitset.attach_notification(&detection_listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
     let planes = waitset.attach_notification(&plane_listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
+    let clouds = waitset.attach_notification(&cloud_listener).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
+    // The newest cloud, held in shared memory (one borrowed sample) until a newer one comes.
+    let mut cloud: Option<iceoryx2::sample::Sample<ipc::Service, [f32], CloudHeader>> = None;
     let tick = waitset.attach_interval(rt.heartbeat_period()).map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
     let mut recent: VecDeque<WallPlaneMsg> = VecDeque::with_capacity(RECENT_PLANES);
     // Detections waiting for the plane of their frame, with when they arrived.
@@ -59,9 +70,9 @@ pub fn run(rt: &Runtime) -> Result<()> {
     let plane_wait = Duration::from_secs_f64(config.plane_wait_ms / 1e3);
     let mut health = Health::new(rt.name);
     tracing::info!("pose service ready ({})", config.template);
-    let publish = |d: &DetectionMsg, recent: &VecDeque<WallPlaneMsg>, health: &mut Health| {
+    let publish = |d: &DetectionMsg, recent: &VecDeque<WallPlaneMsg>, cloud: Option<Cloud>, health: &mut Health| {
         let started = Instant::now();
-        match solve(d, &geometry, recent, config) {
+        match solve(d, &geometry, recent, cloud, config) {
             Ok(None) => {} // no outlet in that frame
             Ok(Some(outcome)) => {
                 if output.send(poses_msg(d, &geometry, &outcome)) {
@@ -99,6 +110,19 @@ pub fn run(rt: &Runtime) -> Result<()> {
                     }
                 }
             }
+            if id.has_event_from(&clouds) {
+                clear(&cloud_listener);
+                loop {
+                    match cloud_sub.receive() {
+                        Ok(Some(c)) => cloud = Some(c),
+                        Ok(None) => break,
+                        Err(e) => {
+                            tracing::warn!("receiving a cloud: {e:?}");
+                            break;
+                        }
+                    }
+                }
+            }
             if id.has_event_from(&detections) {
                 clear(&detection_listener);
                 while let Ok(Some(d)) = detection_sub.receive() {
@@ -132,7 +156,7 @@ pub fn run(rt: &Runtime) -> Result<()> {
                 if d.hole_count > 0 {
                     last_sent_ns = Some(d.capture_time_ns);
                 }
-                publish(d, &recent, &mut health);
+                publish(d, &recent, cloud.as_ref().and_then(cloud_points), &mut health);
                 pending.pop_front();
             } else {
                 break;
@@ -141,6 +165,25 @@ pub fn run(rt: &Runtime) -> Result<()> {
     }
     rt.stopped(&health);
     Ok(())
+}
+
+/// A cloud's capture time and its points.
+type Cloud<'a> = (u64, &'a [[f32; 3]]);
+
+/// The points of a held cloud sample; None (with a warning) when its header
+/// does not fit its payload.
+fn cloud_points(sample: &iceoryx2::sample::Sample<ipc::Service, [f32], CloudHeader>) -> Option<Cloud<'_>> {
+    let header = sample.user_header();
+    match header.validate(sample.payload().len()) {
+        Ok(()) => {
+            let (points, _) = sample.payload().as_chunks::<3>();
+            Some((header.capture_time_ns, points.get(..header.points as usize)?))
+        }
+        Err(e) => {
+            tracing::warn!(frame = header.frame_id, "cloud not used for the face: {e}");
+            None
+        }
+    }
 }
 
 /// What the pose service says about one detection.
@@ -156,6 +199,7 @@ fn solve(
     d: &DetectionMsg,
     geometry: &OutletGeometry,
     recent: &VecDeque<WallPlaneMsg>,
+    cloud: Option<Cloud>,
     config: &outlet::config::PoseConfig,
 ) -> Result<Option<Outcome>, String> {
     if d.schema_version != SCHEMA_VERSION {
@@ -197,19 +241,22 @@ fn solve(
     let refused = |mode, status| Ok(Some(Outcome::Refused { mode, status }));
     match plane {
         Some(p) => {
-            let measurement = PlaneMeasurement {
+            let wall = outlet_normal::WallPlane {
                 normal: Unit::new_normalize(Vector3::from(p.normal)),
                 distance_m: p.distance_m,
                 covariance: Matrix3::from_row_slice(&p.covariance),
                 tangent: p.tangent.map(Vector3::from),
-                face_offset_m: geometry.face_offset_mm / 1000.0,
-            }
-            .with_model_error(
-                config.face_offset_sigma_mm / 1e3,
-                config.plane_tilt_sigma_deg.to_radians(),
-                config.plane_distance_sigma_mm / 1e3,
-            );
-            match solve_plane(&obs, &measurement) {
+                inliers: p.inliers as usize,
+                rms_m: f64::NAN,
+            };
+            let model_error = outlet::ModelError {
+                face_offset_sigma_mm: config.face_offset_sigma_mm,
+                plane_tilt_sigma_deg: config.plane_tilt_sigma_deg,
+                plane_distance_sigma_mm: config.plane_distance_sigma_mm,
+            };
+            // The plane's own cloud, if it is the one held.
+            let points = cloud.filter(|(stamp, _)| *stamp == p.capture_time_ns).map_or(&[][..], |(_, points)| points);
+            match outlet::solve_plane_with_cloud(&obs, &wall, points, geometry, &model_error).map(|(pose, _)| pose) {
                 // Pixels off by more than max_rms_px count against the plane only
                 // where their own sigmas do not explain them (a hole the detector
                 // knows it placed poorly carries a large sigma_px).
