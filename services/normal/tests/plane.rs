@@ -419,3 +419,25 @@ fn the_predicted_covariance_matches_the_scatter_of_200_noisy_clouds() {
         assert!(ratio.iter().all(|r| (0.8..1.25).contains(r)), "{name}: predicted / empirical {ratio:?}");
     }
 }
+
+#[test]
+fn a_dense_cloud_is_thinned_for_the_fit_and_a_sparse_one_keeps_every_valid_point() {
+    let dense = Wall::frontal(0.4).cloud(3);
+    let every = |cloud: &[[f32; 3]]| PlaneParams { max_points: cloud.len(), ..Default::default() };
+    // Thinned to 16 384 points or fewer: the same plane within its sigma, counts for the whole cloud.
+    let thinned = fit_wall_plane(&dense, &PlaneParams::default()).expect("plane");
+    let all = fit_wall_plane(&dense, &every(&dense)).expect("plane");
+    let sigma = thinned.covariance[(2, 2)].sqrt();
+    assert!((thinned.distance_m - all.distance_m).abs() < 4.0 * sigma, "{} vs {}", thinned.distance_m, all.distance_m);
+    assert!((thinned.inliers as f64 / all.inliers as f64 - 1.0).abs() < 0.02, "{} vs {}", thinned.inliers, all.inliers);
+    // Thinning costs precision as the square root of the points dropped.
+    let ratio = sigma / all.covariance[(2, 2)].sqrt();
+    let expected = dense.len().div_ceil(16_384) as f64;
+    assert!((ratio / expected.sqrt() - 1.0).abs() < 0.2, "sigma ratio {ratio:.2}, expected {:.2}", expected.sqrt());
+    // A sparse cloud (most entries NaN, about 5 000 valid) is not thinned.
+    let sparse: Vec<[f32; 3]> =
+        dense.iter().enumerate().map(|(k, p)| if k % 15 == 0 { *p } else { [f32::NAN; 3] }).collect();
+    assert_eq!(fit_wall_plane(&sparse, &PlaneParams::default()), fit_wall_plane(&sparse, &every(&sparse)));
+    let bad = PlaneParams { max_points: 100, ..Default::default() };
+    assert!(matches!(fit_wall_plane(&dense, &bad), Err(PlaneError::InvalidParams(e)) if e.contains("max_points")));
+}
