@@ -5,7 +5,11 @@
 //! receptacle faces standing a few millimetres proud of it are outliers, and so
 //! are stereo mismatches; NaN points are ignored. The result carries the normal
 //! (pointing into the wall), the distance, and an honest covariance that the pose
-//! solver (`outlet-pose`, mode `plane`) uses as a prior.
+//! solver (`outlet-pose`, mode `plane`) uses as a prior. A cloud of more than
+//! [`PlaneParams::max_points`] valid points is thinned first.
+//!
+//! [`measure_face`] then reads how far the receptacle face stands ahead of that
+//! plane from the points around an outlet's holes, once a pose says where they are.
 //!
 //! ```
 //! use outlet_normal::{PlaneParams, fit_wall_plane};
