@@ -7,7 +7,6 @@
 use outlet_protocol::truth::GroundTruth;
 use std::hash::{Hash, Hasher};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
 
 /// What the peer needs, for error messages.
@@ -58,7 +57,7 @@ fn build_peer() -> Result<PathBuf, String> {
     std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     // Built under a name of this process, then renamed: test processes may build at once.
     let partial = dir.join(format!("ros2_peer.{}.partial", std::process::id()));
-    let out = Command::new(&cxx)
+    let out = crate::builder(cxx.as_ref())
         .args(&flags)
         .arg(sources.join("ros2_peer.cpp"))
         .arg("-o")

@@ -11,6 +11,18 @@ use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
+/// A command that runs `program` with umask 022, for the tests' builds (cargo, the
+/// C++ peer). iceoryx2 narrows the process's umask for a moment while it binds
+/// an event socket, and a child forked by another test thread in that moment
+/// inherits it: a cargo build under umask 0177 writes build scripts it cannot
+/// execute (seen here: every test that needed the rebuild failed with
+/// "Permission denied").
+pub fn builder(program: &std::ffi::OsStr) -> Command {
+    let mut command = Command::new("sh");
+    command.args(["-c", "umask 022 && exec \"$0\" \"$@\""]).arg(program);
+    command
+}
+
 /// The newest modification time of the workspace's sources and manifests.
 fn newest_source(dir: &std::path::Path) -> Option<std::time::SystemTime> {
     let mut newest = None;
@@ -51,7 +63,7 @@ pub fn outlet_exe() -> Result<PathBuf, String> {
             return Ok(exe);
         }
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let mut build = Command::new(cargo);
+        let mut build = builder(cargo.as_ref());
         build.args(["build", "--quiet", "-p", "outlet", "--bin", "outlet", "--target-dir"]).arg(target_dir);
         if profile != "debug" {
             build.args(["--profile", if profile == "release" { "release" } else { profile }]);
