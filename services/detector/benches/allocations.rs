@@ -50,9 +50,9 @@ fn main() {
     }
     let per = frames.len() as u64;
     println!(
-        "640x480 full frame: {} allocations, {} kB allocated per frame ({found} of {} found)",
+        "640x480 full frame: {} allocations, {} bytes allocated per frame ({found} of {} found)",
         n / per,
-        bytes / per / 1024,
+        bytes / per,
         frames.len()
     );
     let mut tracker = Tracker::new(TrackParams::default());
@@ -66,5 +66,5 @@ fn main() {
         bytes += b;
     }
     let per = (frames.len() - 3) as u64;
-    println!("640x480 tracked: {} allocations, {} kB allocated per frame", n / per, bytes / per / 1024);
+    println!("640x480 tracked: {} allocations, {} bytes allocated per frame", n / per, bytes / per);
 }

@@ -228,13 +228,29 @@ struct Run {
 /// Hole candidates of a grey image (see [`crate::grey_of`]), highest contrast first.
 /// Never panics; an empty image or one without levels gives none.
 pub fn find_candidates(grey: &GrayImage, params: &CandidateParams) -> Vec<Candidate> {
-    crate::with_scratch(&SCRATCH, |scratch| find_with(grey, params, scratch))
+    let mut found = Vec::new();
+    find_candidates_into(grey, params, params.min_contrast, &mut found);
+    found
+}
+
+/// [`find_candidates`] into `out` (cleared first), with `min_contrast` in place
+/// of the parameters' own: the detector reuses one vector per frame and raises
+/// the contrast for large images without copying the parameters.
+pub(crate) fn find_candidates_into(
+    grey: &GrayImage,
+    params: &CandidateParams,
+    min_contrast: f32,
+    out: &mut Vec<Candidate>,
+) {
+    out.clear();
+    crate::with_scratch(&SCRATCH, |scratch| find_with(grey, params, min_contrast, scratch, out));
 }
 
 /// The buffers of one search, kept by each thread between frames, so that a
 /// frame takes nothing from the allocator once the sizes have settled.
 #[derive(Default)]
 struct Scratch {
+    levels: Vec<u8>,
     rows: Vec<u16>,
     smooth: Vec<u8>,
     runs: Vec<Run>,
@@ -256,16 +272,17 @@ thread_local! {
     static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
 }
 
-fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) -> Vec<Candidate> {
+fn find_with(
+    grey: &GrayImage,
+    params: &CandidateParams,
+    min_contrast: f32,
+    scratch: &mut Scratch,
+    out: &mut Vec<Candidate>,
+) {
     let (w, h) = (grey.width() as usize, grey.height() as usize);
     let _span = tracing::debug_span!("candidates", w, h).entered();
-    let mut levels: Vec<u8> = params.levels.iter().copied().filter(|&l| l > 0).collect();
-    levels.sort_unstable();
-    levels.dedup();
-    let padded = (w + 2).checked_mul(h + 2).filter(|&n| n < DEAD as usize);
-    let pixels = grey.as_raw().get(..w * h).filter(|p| !p.is_empty());
-    let (Some(&top), Some(padded), Some(pixels)) = (levels.last(), padded, pixels) else { return Vec::new() };
     let Scratch {
+        levels,
         rows,
         smooth,
         runs,
@@ -282,12 +299,19 @@ fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) 
         found,
         grid,
     } = scratch;
+    levels.clear();
+    levels.extend(params.levels.iter().copied().filter(|&l| l > 0));
+    levels.sort_unstable();
+    levels.dedup();
+    let padded = (w + 2).checked_mul(h + 2).filter(|&n| n < DEAD as usize);
+    let pixels = grey.as_raw().get(..w * h).filter(|p| !p.is_empty());
+    let (Some(&top), Some(padded), Some(pixels)) = (levels.last(), padded, pixels) else { return };
     smooth_3x3(pixels, w, h, rows, smooth);
     let smooth: &[u8] = smooth;
 
-    runs_of_rows(smooth, w, &levels, top, runs, bands, row_start, band_row, at);
+    runs_of_rows(smooth, w, levels, top, runs, bands, row_start, band_row, at);
     if runs.len() >= DEAD as usize {
-        return Vec::new();
+        return;
     }
     order_by_band(bands, levels.len(), start, order);
     // The label of each run: its component's node (any node of it: `find` gives
@@ -334,7 +358,7 @@ fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) 
             let blob = &forest.blobs[*node as usize];
             if blob.area != *seen {
                 *seen = blob.area;
-                found.extend(score(blob, smooth, w, h, level, params));
+                found.extend(score(blob, smooth, w, h, level, params, min_contrast));
             }
             true
         });
@@ -346,9 +370,8 @@ fn find_with(grey: &GrayImage, params: &CandidateParams, scratch: &mut Scratch) 
     if grid.len() < padded {
         grid.resize(padded, NONE);
     }
-    let kept = suppress_duplicates(found, &mut grid[..padded], w + 2, h + 2);
-    tracing::debug!(candidates = kept.len());
-    kept
+    suppress_duplicates(found, &mut grid[..padded], w + 2, h + 2, out);
+    tracing::debug!(candidates = out.len());
 }
 
 /// The runs of the image in raster order (maximal stretches of one band along a row;
@@ -475,7 +498,15 @@ fn order_by_band(bands: &[u8], count: usize, start: &mut Vec<u32>, order: &mut V
 }
 
 /// The candidate of a component at a level, if its size and contrast qualify.
-fn score(blob: &Blob, smooth: &[u8], w: usize, h: usize, level: u8, params: &CandidateParams) -> Option<Candidate> {
+fn score(
+    blob: &Blob,
+    smooth: &[u8],
+    w: usize,
+    h: usize,
+    level: u8,
+    params: &CandidateParams,
+    min_contrast: f32,
+) -> Option<Candidate> {
     let [sw, sh] = blob.size();
     if sw.min(sh) < params.min_side || blob.area < params.min_area {
         return None;
@@ -497,16 +528,22 @@ fn score(blob: &Blob, smooth: &[u8], w: usize, h: usize, level: u8, params: &Can
     }
     // A black centre counts as grey 1: any brighter surround is then high contrast.
     let contrast = sum / n as f32 / inside.max(1.0);
-    (contrast >= params.min_contrast).then_some(Candidate { centre, size: [sw, sh], area: blob.area, contrast, level })
+    (contrast >= min_contrast).then_some(Candidate { centre, size: [sw, sh], area: blob.area, contrast, level })
 }
 
 /// Keeps the highest contrast candidate of each group closer than
-/// [`DUPLICATE_RADIUS_PX`]; `grid` (padded image size, all NONE, left so) marks kept
-/// centres.
-fn suppress_duplicates(found: &mut [Candidate], grid: &mut [u32], stride: usize, rows: usize) -> Vec<Candidate> {
+/// [`DUPLICATE_RADIUS_PX`], into `kept` (empty); `grid` (padded image size, all
+/// NONE, left so) marks kept centres.
+fn suppress_duplicates(
+    found: &mut [Candidate],
+    grid: &mut [u32],
+    stride: usize,
+    rows: usize,
+    kept: &mut Vec<Candidate>,
+) {
     found.sort_by(|a, b| b.contrast.total_cmp(&a.contrast));
     let reach = DUPLICATE_RADIUS_PX.ceil() as usize + 1;
-    let mut kept: Vec<Candidate> = Vec::with_capacity(found.len());
+    kept.reserve(found.len());
     for &c in found.iter() {
         let (cx, cy) = (c.centre.x.round() as usize + 1, c.centre.y.round() as usize + 1);
         let near = (cy.saturating_sub(reach)..(cy + reach + 1).min(rows)).any(|y| {
@@ -520,10 +557,9 @@ fn suppress_duplicates(found: &mut [Candidate], grid: &mut [u32], stride: usize,
             kept.push(c);
         }
     }
-    for c in &kept {
+    for c in kept.iter() {
         grid[(c.centre.y.round() as usize + 1) * stride + c.centre.x.round() as usize + 1] = NONE;
     }
-    kept
 }
 
 /// 3x3 binomial smoothing ([1 2 1] / 4 each way), borders replicated.

@@ -108,11 +108,13 @@ pub struct Tracker {
     before_last: Option<(Matrix3<f64>, f64)>,
     /// Frames searched by window only since the last full-frame search.
     windows_since_full: u32,
+    /// The followed holes' guesses, kept between frames.
+    guesses: Vec<Point2<f64>>,
 }
 
 impl Tracker {
     pub fn new(params: TrackParams) -> Self {
-        Self { params, last: None, before_last: None, windows_since_full: 0 }
+        Self { params, last: None, before_last: None, windows_since_full: 0, guesses: Vec::new() }
     }
 
     /// Forgets the last outlet: the next frame is searched whole.
@@ -197,15 +199,14 @@ impl Tracker {
         // a frame, more than a fit started at its last place follows.
         let predicted = self.predicted(homography, *then, time_s);
         let model = detector.template().geometry.holes.iter().map(|h| h.position());
-        let guesses: Vec<Point2<f64>> = holes
-            .iter()
-            .zip(model)
-            .map(|(p, t)| match (apply_homography(&predicted, &t), apply_homography(homography, &t)) {
+        self.guesses.clear();
+        self.guesses.extend(holes.iter().zip(model).map(|(p, t)| {
+            match (apply_homography(&predicted, &t), apply_homography(homography, &t)) {
                 (Some(a), Some(b)) => p + (a - b),
                 _ => *p,
-            })
-            .collect();
-        let report = detector.verify_at(grey, origin, camera, &predicted, &guesses, *score, max_move);
+            }
+        }));
+        let report = detector.verify_at(grey, origin, camera, &predicted, &self.guesses, *score, max_move);
         self.accept(report, time_s, Searched::Followed(window))
     }
 
@@ -273,11 +274,12 @@ impl Tracker {
             (Some(last), Some(_)) => Some((last.homography, last.time_s)),
             _ => None,
         };
-        self.last = report.detection.as_ref().map(|d| LastOutlet {
-            holes: d.holes.iter().map(|h| h.pixel).collect(),
-            time_s,
-            homography: d.homography,
-            score: d.score,
+        // The last outlet's vector is reused for this one's holes.
+        let mut holes = self.last.take().map(|last| last.holes).unwrap_or_default();
+        self.last = report.detection.as_ref().map(|d| {
+            holes.clear();
+            holes.extend(d.holes.iter().map(|h| h.pixel));
+            LastOutlet { holes, time_s, homography: d.homography, score: d.score }
         });
     }
 

@@ -578,7 +578,8 @@ fn slots_alone_give_the_slots_upright_or_half_turned() {
 fn a_duplex_knows_its_half_turn() {
     for name in ["2x1", "2x2"] {
         let t = template(name);
-        let (centre, image) = table(&t).half_turn().expect("a duplex is symmetric in its power holes");
+        let table = table(&t);
+        let (centre, image) = table.half_turn().expect("a duplex is symmetric in its power holes");
         for (j, k) in image.iter().enumerate() {
             match (t.classes[j], k) {
                 (Class::Power, Some(k)) => {

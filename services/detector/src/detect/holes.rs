@@ -1,13 +1,49 @@
 //! An outlet's holes refined where the hashing's homography puts them, and the
 //! checks that verify the outlet from them: one plane, not mirrored, ground
-//! holes where they should be, the reading told from its half turn.
+//! holes where they should be (`ground`), the reading told from its half turn.
 
+use super::ground::GroundEvidence;
 use super::{DetectedHole, Detection, Detector, Lens, apply, centroid, fit_homography, local_jacobian};
 use crate::refine::{HoleShape, RefineParams, Refined, outline_at, refine_hole};
 use crate::verify::{hole_score, identity_gain};
 use image::GrayImage;
 use nalgebra::{Matrix2, Matrix3, Point2};
-use outlet_protocol::HoleKind;
+
+/// The per-hole vectors of one verification, kept by each thread between
+/// calls: a frame verifies one outlet or a few, each taking some twenty.
+#[derive(Default)]
+struct RefineScratch {
+    fits: Vec<Option<Refined>>,
+    jacobians: Vec<Matrix2<f64>>,
+    refined: Vec<Option<Point2<f64>>>,
+    wants_prediction: Vec<bool>,
+    predicted_only: Vec<bool>,
+    sigmas: Vec<f64>,
+    fitted: Vec<(Point2<f64>, Point2<f64>, f64)>,
+    seen: Vec<(Point2<f64>, Matrix2<f64>, HoleShape)>,
+    fit: FitBuffers,
+    agreement: Agreement,
+}
+
+/// The point pairs of the homography fits (`plane_fit`, `prediction_sigma`).
+#[derive(Default)]
+struct FitBuffers {
+    pairs: Vec<(Point2<f64>, Point2<f64>)>,
+    moved: Vec<(Point2<f64>, Point2<f64>)>,
+}
+
+/// [`agreement_sigmas`]'s vectors; `sigmas` is its answer.
+#[derive(Default)]
+struct Agreement {
+    indexed: Vec<(usize, Point2<f64>, Point2<f64>)>,
+    all: Vec<(Point2<f64>, Point2<f64>)>,
+    others: Vec<(Point2<f64>, Point2<f64>)>,
+    sigmas: Vec<Option<f64>>,
+}
+
+thread_local! {
+    static REFINE_SCRATCH: std::cell::RefCell<RefineScratch> = std::cell::RefCell::new(RefineScratch::default());
+}
 
 impl Detector {
     /// Refines every hole from the hashing's homography, then verifies the
@@ -22,9 +58,36 @@ impl Detector {
         guesses: &[Option<Point2<f64>>],
         score: usize,
     ) -> Result<Detection, String> {
-        let model: Vec<Point2<f64>> = self.template.geometry.holes.iter().map(|h| h.position()).collect();
-        let mut fits: Vec<Option<Refined>> = Vec::with_capacity(model.len());
-        let mut jacobians: Vec<Matrix2<f64>> = Vec::with_capacity(model.len());
+        crate::with_scratch(&REFINE_SCRATCH, |scratch| {
+            self.refine_with(grey, lens, homography, guesses, score, scratch)
+        })
+    }
+
+    fn refine_with(
+        &self,
+        grey: &GrayImage,
+        lens: &Lens,
+        homography: &Matrix3<f64>,
+        guesses: &[Option<Point2<f64>>],
+        score: usize,
+        scratch: &mut RefineScratch,
+    ) -> Result<Detection, String> {
+        let RefineScratch {
+            fits,
+            jacobians,
+            refined,
+            wants_prediction,
+            predicted_only,
+            sigmas: fitted_sigmas,
+            fitted,
+            seen: outlines_seen,
+            fit: fit_buffers,
+            agreement,
+        } = scratch;
+        // The template's holes, as the hashing table holds them.
+        let model = self.table.points();
+        fits.clear();
+        jacobians.clear();
         let degenerate = || "the homography maps a hole to infinity".to_string();
         for (i, t) in model.iter().enumerate() {
             let predicted = lens.distort(apply(homography, t).ok_or_else(degenerate)?);
@@ -39,24 +102,27 @@ impl Detector {
             fits.push(fit);
             jacobians.push(jacobian);
         }
-        let mut refined: Vec<Option<Point2<f64>>> = fits.iter().map(|f| f.map(|r| r.centre)).collect();
+        refined.clear();
+        refined.extend(fits.iter().map(|f| f.map(|r| r.centre)));
         // The refined holes must lie where one plane puts them. Holes that do not
         // (a fit caught by a glint or a dark spot) are dropped one by one, worst
         // first; the outlet stands only if enough holes remain.
         let min_holes = self.params.hash.min_score(model.len()).max(4);
         // Pixels per mm along the outlet's least foreshortened direction.
-        let scale = local_jacobian(homography, lens, &centroid(&model)).ok_or_else(degenerate)?.singular_values().max();
+        let scale = local_jacobian(homography, lens, &centroid(model)).ok_or_else(degenerate)?.singular_values().max();
         let tolerance = self.params.max_plane_px.max(self.params.max_plane_mm * scale);
         // Too few holes on one plane yet may be the hashing's homography, made
         // from a few candidates' centres, guessing the far holes too far off for
         // their outlines (blur, a real outlet a little off the nominal one): with
         // enough of them, the rest are looked for where the fitted holes put them.
-        let h = plane_fit(&model, &mut refined, lens, tolerance, min_holes.min(self.params.min_holes_to_look_again))?;
+        let least = min_holes.min(self.params.min_holes_to_look_again);
+        let h = plane_fit(model, refined, lens, tolerance, least, &mut fit_buffers.pairs)?;
         // A hole not found (faint: washed out, in shadow; or its first guess too
         // far off) is looked for once more where the seen holes' homography puts
         // it, with less contrast; it counts only if it lands on that plane too.
         let faint = RefineParams { min_relative_contrast: self.params.verify.faint_contrast, ..self.params.refine };
-        let mut wants_prediction = vec![false; model.len()];
+        wants_prediction.clear();
+        wants_prediction.resize(model.len(), false);
         let mut faint_found = false;
         for (i, t) in model.iter().enumerate() {
             if refined[i].is_some() {
@@ -86,7 +152,7 @@ impl Detector {
         // plane is dropped); any centre predicted below comes from this fit.
         let seen = refined.iter().flatten().count();
         let h = if faint_found || seen < min_holes {
-            plane_fit(&model, &mut refined, lens, tolerance, min_holes)?
+            plane_fit(model, refined, lens, tolerance, min_holes, &mut fit_buffers.pairs)?
         } else {
             h
         };
@@ -94,7 +160,8 @@ impl Detector {
         // outline fit measures the image noise, not the fit's bias (a T-slot's
         // branch, a blurred edge, a worn opening), which shows as the hole's
         // distance from where the rest of the outlet puts it.
-        for (i, spread) in agreement_sigmas(&model, &refined, lens).into_iter().enumerate() {
+        agreement_sigmas(model, refined, lens, agreement);
+        for (i, &spread) in agreement.sigmas.iter().enumerate() {
             if let (Some(spread), Some(fit)) = (spread, fits[i].as_mut()) {
                 *fit = fit.with_sigma_at_least(spread);
             }
@@ -103,12 +170,13 @@ impl Detector {
         // the blur, the noise and the outline model's error, and a fit that
         // claims far less than its neighbours is mostly one that was lucky in
         // its pixels (see `MIN_SIGMA_OF_MEDIAN`).
-        let mut fitted_sigmas: Vec<f64> =
-            fits.iter().zip(&refined).filter_map(|(f, r)| r.and(f.as_ref()).map(|f| f.sigma_px)).collect();
+        fitted_sigmas.clear();
+        fitted_sigmas
+            .extend(fits.iter().zip(refined.iter()).filter_map(|(f, r)| r.and(f.as_ref()).map(|f| f.sigma_px)));
         if !fitted_sigmas.is_empty() {
             let mid = fitted_sigmas.len() / 2;
             let median = *fitted_sigmas.select_nth_unstable_by(mid, f64::total_cmp).1;
-            for (fit, r) in fits.iter_mut().zip(&refined) {
+            for (fit, r) in fits.iter_mut().zip(refined.iter()) {
                 if let (Some(fit), Some(_)) = (fit.as_mut(), r) {
                     *fit = fit.with_sigma_at_least(MIN_SIGMA_OF_MEDIAN * median);
                 }
@@ -119,13 +187,16 @@ impl Detector {
         // must show right there (`refined` false); its sigma carries the fitted
         // holes' error carried through the homography and the real outlet's
         // departure from the nominal geometry.
-        let fitted: Vec<(Point2<f64>, Point2<f64>, f64)> = model
-            .iter()
-            .zip(&refined)
-            .zip(&fits)
-            .filter_map(|((t, r), f)| Some((*t, lens.undistort((*r)?), f.as_ref()?.sigma_px)))
-            .collect();
-        let mut predicted_only = vec![false; model.len()];
+        fitted.clear();
+        fitted.extend(
+            model
+                .iter()
+                .zip(refined.iter())
+                .zip(fits.iter())
+                .filter_map(|((t, r), f)| Some((*t, lens.undistort((*r)?), f.as_ref()?.sigma_px))),
+        );
+        predicted_only.clear();
+        predicted_only.resize(model.len(), false);
         for (i, t) in model.iter().enumerate() {
             if refined[i].is_some() || !wants_prediction[i] || fitted.len() < self.params.min_fitted_for_prediction {
                 continue;
@@ -134,7 +205,7 @@ impl Detector {
             let predicted = lens.distort(q);
             let Some(jacobian) = local_jacobian(&h, lens, t) else { continue };
             let Some(fit) = outline_at(grey, predicted, &jacobian, self.outlines[i], &faint) else { continue };
-            let carried = prediction_sigma(&fitted, t).unwrap_or(f64::INFINITY);
+            let carried = prediction_sigma(fitted, t, fit_buffers).unwrap_or(f64::INFINITY);
             let nominal = self.params.predicted_sigma_mm * jacobian.singular_values().max();
             let sigma_px = (fit.sigma_px.powi(2) + carried.powi(2) + nominal.powi(2)).sqrt().max(tolerance / 2.0);
             if !sigma_px.is_finite() {
@@ -150,7 +221,7 @@ impl Detector {
         // Every hole must have been seen: a hole predicted from the others may lie
         // on the bare plate (the arm would go there), so the outlet is refused.
         let mut holes = Vec::with_capacity(model.len());
-        for (i, ((t, r), hole)) in model.iter().zip(&refined).zip(&self.template.geometry.holes).enumerate() {
+        for (i, ((t, r), hole)) in model.iter().zip(refined.iter()).zip(&self.template.geometry.holes).enumerate() {
             let kind = hole.kind.as_str();
             let (Some(pixel), Some(fit)) = (r, fits[i]) else {
                 return Err(match fits[i] {
@@ -180,7 +251,7 @@ impl Detector {
             });
         }
         // Never a mirror image: the camera sees the outlet's front.
-        let det = local_jacobian(&h, lens, &centroid(&model)).ok_or_else(degenerate)?.determinant();
+        let det = local_jacobian(&h, lens, &centroid(model)).ok_or_else(degenerate)?.determinant();
         if det.is_nan() || det <= 0.0 {
             return Err("the refined holes read as a mirror image".to_string());
         }
@@ -193,9 +264,10 @@ impl Detector {
         // never sees one (the determinant above), so the slots only veto a
         // reading they clearly contradict. Slot lengths are weak evidence on
         // real photographs (a T-slot and a hot slot 8-12 px long in blur).
-        let seen: Vec<(Point2<f64>, Matrix2<f64>, HoleShape)> =
-            holes.iter().zip(&jacobians).zip(&self.outlines).map(|((d, j), o)| (d.pixel, *j, *o)).collect();
-        if let Some(gain) = identity_gain(grey, &seen, &self.outlines, &self.params.refine) {
+        outlines_seen.clear();
+        outlines_seen
+            .extend(holes.iter().zip(jacobians.iter()).zip(&self.outlines).map(|((d, j), o)| (d.pixel, *j, *o)));
+        if let Some(gain) = identity_gain(grey, outlines_seen, &self.outlines, &self.params.refine) {
             tracing::debug!(gain, ?ground, "outlines against the swapped reading");
             let least = match ground {
                 GroundEvidence::Decides => -self.params.verify.max_identity_contradiction,
@@ -208,58 +280,6 @@ impl Detector {
             }
         }
         Ok(Detection { holes, score, homography: h })
-    }
-
-    /// An outlet whose power holes map onto themselves under a half turn (every
-    /// US duplex) matches its own half-turned self on the power holes alone: the
-    /// ground holes then land on the plate, where nothing is (a false alarm that
-    /// sends the arm beside the holes). The ground holes decide: where this
-    /// detection puts them must be darker than where the half-turned one would.
-    fn ground_evidence(&self, grey: &GrayImage, lens: &Lens, h: &Matrix3<f64>) -> GroundEvidence {
-        let holes = &self.template.geometry.holes;
-        let power: Vec<Point2<f64>> =
-            holes.iter().filter(|t| t.kind == HoleKind::Power).map(|t| t.position()).collect();
-        let ground: Vec<Point2<f64>> =
-            holes.iter().filter(|t| t.kind == HoleKind::Ground).map(|t| t.position()).collect();
-        if power.is_empty() || ground.is_empty() {
-            return GroundEvidence::Silent;
-        }
-        let c = centroid(&power);
-        let turn = |p: &Point2<f64>| Point2::from(2.0 * c.coords - p.coords);
-        let symmetric = power.iter().all(|p| power.iter().any(|q| (turn(p) - q).norm() < 1.0));
-        let turned: Vec<Point2<f64>> = ground.iter().map(turn).collect();
-        // Where the turned grounds fall on holes of the template, nothing tells them apart.
-        let on_holes = turned.iter().any(|g| holes.iter().any(|t| (t.position() - g).norm() < 2.0));
-        if !symmetric || on_holes {
-            return GroundEvidence::Silent;
-        }
-        let Some(jacobian) = local_jacobian(h, lens, &c) else { return GroundEvidence::Against };
-        // Half the ground hole's width (4.8 mm) in pixels.
-        let radius = (2.4 * jacobian.singular_values().min()).max(1.5);
-        let darkness = |points: &[Point2<f64>]| -> Option<f64> {
-            let mut sum = 0.0;
-            for t in points {
-                sum += dark_quartile(grey, lens.distort(apply(h, t)?), radius)?;
-            }
-            Some(sum / points.len() as f64)
-        };
-        match (darkness(&ground), darkness(&turned)) {
-            (Some(here), Some(there)) => {
-                // How much darker, relative to the half-turned places.
-                let contrast = (there - here) / (there + 1.0);
-                tracing::debug!(here, there, contrast, "ground holes against their half-turned places");
-                if contrast.is_nan() || contrast <= self.params.ground_contrast {
-                    GroundEvidence::Against
-                } else if contrast >= self.params.ground_decides {
-                    GroundEvidence::Decides
-                } else {
-                    GroundEvidence::Weak
-                }
-            }
-            // A half-turned ground outside the image says nothing against this one.
-            (Some(_), None) => GroundEvidence::Silent,
-            _ => GroundEvidence::Against,
-        }
     }
 }
 
@@ -280,15 +300,15 @@ fn plane_fit(
     lens: &Lens,
     tolerance: f64,
     min_holes: usize,
+    pairs: &mut Vec<(Point2<f64>, Point2<f64>)>,
 ) -> Result<Matrix3<f64>, String> {
-    let mut pairs: Vec<(Point2<f64>, Point2<f64>)> = Vec::with_capacity(model.len());
     loop {
         pairs.clear();
         pairs.extend(model.iter().zip(refined.iter()).filter_map(|(t, r)| r.map(|r| (*t, lens.undistort(r)))));
         if pairs.len() < min_holes {
             return Err(format!("only {} holes lie on one plane", pairs.len()));
         }
-        let h = fit_homography(&pairs).ok_or("no homography through the refined holes")?;
+        let h = fit_homography(pairs).ok_or("no homography through the refined holes")?;
         let worst = model
             .iter()
             .zip(refined.iter())
@@ -314,23 +334,25 @@ fn plane_fit(
 /// (leave-one-out), e r / 2 estimates its variance per axis (the studentised
 /// residual of least squares: e shrinks by the hole's leverage and r grows by
 /// it, their product does neither). `None` for a hole not fitted, or where
-/// fewer than five others are.
-fn agreement_sigmas(model: &[Point2<f64>], refined: &[Option<Point2<f64>>], lens: &Lens) -> Vec<Option<f64>> {
-    let pairs: Vec<(usize, Point2<f64>, Point2<f64>)> =
-        model.iter().zip(refined).enumerate().filter_map(|(i, (t, r))| Some((i, *t, lens.undistort((*r)?)))).collect();
-    let mut out = vec![None; model.len()];
+/// fewer than five others are. Into `buffers.sigmas`, one per template hole.
+fn agreement_sigmas(model: &[Point2<f64>], refined: &[Option<Point2<f64>>], lens: &Lens, buffers: &mut Agreement) {
+    let Agreement { indexed: pairs, all, others, sigmas: out } = buffers;
+    pairs.clear();
+    pairs.extend(model.iter().zip(refined).enumerate().filter_map(|(i, (t, r))| Some((i, *t, lens.undistort((*r)?)))));
+    out.clear();
+    out.resize(model.len(), None);
     if pairs.len() < 6 {
-        return out;
+        return;
     }
-    let all: Vec<(Point2<f64>, Point2<f64>)> = pairs.iter().map(|(_, t, p)| (*t, *p)).collect();
-    let Some(full) = fit_homography(&all) else { return out };
-    let mut others: Vec<(Point2<f64>, Point2<f64>)> = Vec::with_capacity(all.len());
+    all.clear();
+    all.extend(pairs.iter().map(|(_, t, p)| (*t, *p)));
+    let Some(full) = fit_homography(all) else { return };
     for (k, (i, t, p)) in pairs.iter().enumerate() {
         others.clear();
         others.extend(all.iter().enumerate().filter(|(j, _)| *j != k).map(|(_, pair)| *pair));
         let (Some(e), Some(r)) = (
             apply(&full, t).map(|q| (q - p).norm()),
-            fit_homography(&others).and_then(|h| apply(&h, t)).map(|q| (q - p).norm()),
+            fit_homography(others).and_then(|h| apply(&h, t)).map(|q| (q - p).norm()),
         ) else {
             continue;
         };
@@ -339,23 +361,29 @@ fn agreement_sigmas(model: &[Point2<f64>], refined: &[Option<Point2<f64>>], lens
             *slot = sigma.is_finite().then_some(sigma);
         }
     }
-    out
 }
 
 /// Standard deviation per axis (pixels) of the point the homography through
 /// `fitted` (template mm, undistorted pixel, that pixel's sigma) puts `t` at,
 /// from the fitted pixels' own errors carried through the fit (numerically:
 /// each pixel moved in turn). Large where `t` lies far outside the fitted holes.
-fn prediction_sigma(fitted: &[(Point2<f64>, Point2<f64>, f64)], t: &Point2<f64>) -> Option<f64> {
-    let pairs: Vec<(Point2<f64>, Point2<f64>)> = fitted.iter().map(|(m, p, _)| (*m, *p)).collect();
-    let base = apply(&fit_homography(&pairs)?, t)?;
+fn prediction_sigma(
+    fitted: &[(Point2<f64>, Point2<f64>, f64)],
+    t: &Point2<f64>,
+    buffers: &mut FitBuffers,
+) -> Option<f64> {
+    let FitBuffers { pairs, moved } = buffers;
+    pairs.clear();
+    pairs.extend(fitted.iter().map(|(m, p, _)| (*m, *p)));
+    let base = apply(&fit_homography(pairs)?, t)?;
     let step = 0.01;
     let mut variance = 0.0;
     for (k, (_, _, sigma)) in fitted.iter().enumerate() {
         for axis in 0..2 {
-            let mut moved = pairs.clone();
+            moved.clear();
+            moved.extend_from_slice(pairs);
             moved[k].1[axis] += step;
-            let q = apply(&fit_homography(&moved)?, t)?;
+            let q = apply(&fit_homography(moved)?, t)?;
             variance += ((q - base) / step).norm_squared() * sigma * sigma;
         }
     }
@@ -364,63 +392,20 @@ fn prediction_sigma(fitted: &[(Point2<f64>, Point2<f64>, f64)], t: &Point2<f64>)
     sigma.is_finite().then_some(sigma)
 }
 
-/// What the ground holes say about a reading against its half turn.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum GroundEvidence {
-    /// Nothing: no ground holes, an outlet not symmetric under a half turn, or
-    /// the half-turned places outside the image.
-    Silent,
-    /// Darker than the half-turned places, but not by [`DetectorParams::ground_decides`].
-    Weak,
-    /// Clearly darker: the half turn is decided.
-    Decides,
-    /// Not darker: the reading is refused.
-    Against,
-}
-
-/// The mean of the darkest quarter of the grey values within `radius` pixels of
-/// `centre`; `None` when the disc leaves the image.
-fn dark_quartile(grey: &GrayImage, centre: Point2<f64>, radius: f64) -> Option<f64> {
-    let (w, h) = grey.dimensions();
-    let r = radius.ceil();
-    // In floating point first: a centre far outside (or not finite) fails here.
-    let inside = |c: f64, size: u32| c.round() - r >= 0.0 && c.round() + r < size as f64;
-    if !(radius.is_finite() && inside(centre.x, w) && inside(centre.y, h)) {
-        return None;
-    }
-    let (r, cx, cy) = (r as i64, centre.x.round() as i64, centre.y.round() as i64);
-    // A histogram, not a sorted copy: the darkest quarter's mean all the same.
-    let mut histogram = [0u32; 256];
-    let mut count = 0usize;
-    for y in cy - r..=cy + r {
-        for x in cx - r..=cx + r {
-            let (dx, dy) = (x as f64 - centre.x, y as f64 - centre.y);
-            if dx * dx + dy * dy <= radius * radius {
-                histogram[grey.get_pixel(x as u32, y as u32)[0] as usize] += 1;
-                count += 1;
-            }
-        }
-    }
-    if count == 0 {
-        return None;
-    }
-    let quarter = (count / 4).max(1);
-    let (mut left, mut sum) = (quarter, 0.0);
-    for (value, &n) in histogram.iter().enumerate() {
-        let take = left.min(n as usize);
-        sum += (value * take) as f64;
-        left -= take;
-        if left == 0 {
-            break;
-        }
-    }
-    Some(sum / quarter as f64)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use nalgebra::Vector2;
+
+    fn sigmas_of(model: &[Point2<f64>], refined: &[Option<Point2<f64>>], lens: &Lens) -> Vec<Option<f64>> {
+        let mut buffers = Agreement::default();
+        agreement_sigmas(model, refined, lens, &mut buffers);
+        buffers.sigmas
+    }
+
+    fn predicted_sigma(fitted: &[(Point2<f64>, Point2<f64>, f64)], t: &Point2<f64>) -> Option<f64> {
+        prediction_sigma(fitted, t, &mut FitBuffers::default())
+    }
 
     /// A 2x1's six holes (template mm) seen at 3 px per mm, shifted to (300, 200).
     fn seen_2x1() -> (Vec<Point2<f64>>, Vec<Point2<f64>>) {
@@ -436,14 +421,14 @@ mod tests {
         let lens = Lens { camera: None };
         let mut refined: Vec<Option<Point2<f64>>> = image.iter().map(|p| Some(*p)).collect();
         refined[1] = Some(image[1] + Vector2::new(6.0, -2.0));
-        let h = plane_fit(&model, &mut refined, &lens, 1.0, 4).expect("five holes remain");
+        let h = plane_fit(&model, &mut refined, &lens, 1.0, 4, &mut Vec::new()).expect("five holes remain");
         assert_eq!(refined[1], None, "the moved hole is dropped");
         assert!(refined.iter().filter(|r| r.is_some()).count() == 5);
         let q = apply(&h, &model[1]).expect("finite");
         assert!((q - image[1]).norm() < 1e-6, "the fit puts the dropped hole back at {q}");
         let mut refined: Vec<Option<Point2<f64>>> = image.iter().map(|p| Some(*p)).collect();
         refined[1] = Some(image[1] + Vector2::new(6.0, -2.0));
-        let why = plane_fit(&model, &mut refined, &lens, 1.0, 6).expect_err("only five on the plane");
+        let why = plane_fit(&model, &mut refined, &lens, 1.0, 6, &mut Vec::new()).expect_err("only five on the plane");
         assert!(why.contains("only 5 holes"), "{why}");
     }
 
@@ -452,12 +437,12 @@ mod tests {
         let (model, image) = seen_2x1();
         let lens = Lens { camera: None };
         let exact: Vec<Option<Point2<f64>>> = image.iter().map(|p| Some(*p)).collect();
-        let sigmas = agreement_sigmas(&model, &exact, &lens);
+        let sigmas = sigmas_of(&model, &exact, &lens);
         assert!(sigmas.iter().all(|s| s.is_some_and(|s| s < 1e-6)), "{sigmas:?}");
         // One hole 0.8 px off, as a fit pulled by a T-slot's branch would be.
         let mut moved = exact.clone();
         moved[4] = Some(image[4] + Vector2::new(0.8, 0.0));
-        let sigmas = agreement_sigmas(&model, &moved, &lens);
+        let sigmas = sigmas_of(&model, &moved, &lens);
         let own = sigmas[4].expect("fitted");
         assert!(own > 0.3 && own < 0.8, "the moved hole: {own:.3} px");
         let others = sigmas.iter().enumerate().filter(|(i, _)| *i != 4).filter_map(|(_, s)| *s).fold(0.0, f64::max);
@@ -465,7 +450,7 @@ mod tests {
         // Too few fitted holes to tell: no claim.
         let mut few = exact;
         few[0] = None;
-        assert!(agreement_sigmas(&model, &few, &lens).iter().all(Option::is_none));
+        assert!(sigmas_of(&model, &few, &lens).iter().all(Option::is_none));
     }
 
     #[test]
@@ -475,32 +460,16 @@ mod tests {
             ks.iter().map(|&k| (model[k], image[k], 0.2)).collect()
         };
         // Hole 5 (the lower ground) from the upper receptacle and the lower slots.
-        let four = prediction_sigma(&with(&[0, 1, 3, 4]), &model[5]).expect("four");
-        let five = prediction_sigma(&with(&[0, 1, 2, 3, 4]), &model[5]).expect("five");
+        let four = predicted_sigma(&with(&[0, 1, 3, 4]), &model[5]).expect("four");
+        let five = predicted_sigma(&with(&[0, 1, 2, 3, 4]), &model[5]).expect("five");
         assert!(four.is_finite() && five.is_finite());
         assert!(four > five, "four holes {four:.3} px, five {five:.3} px");
         // Extrapolating far beyond the fitted holes is less sure than between them.
-        let far = prediction_sigma(&with(&[0, 1, 2, 3, 4]), &Point2::new(0.0, 120.0)).expect("far");
+        let far = predicted_sigma(&with(&[0, 1, 2, 3, 4]), &Point2::new(0.0, 120.0)).expect("far");
         assert!(far > 2.0 * five, "far {far:.3} px, near {five:.3} px");
         // Sure pixels make a sure prediction: the sigma scales with theirs.
         let sure: Vec<_> = with(&[0, 1, 2, 3, 4]).into_iter().map(|(m, p, _)| (m, p, 0.02)).collect();
-        let sure = prediction_sigma(&sure, &model[5]).expect("sure");
+        let sure = predicted_sigma(&sure, &model[5]).expect("sure");
         assert!((sure * 10.0 - five).abs() < 1e-3 * five, "{sure} against {five}");
-    }
-
-    #[test]
-    fn the_dark_quartile_sees_a_hole_and_refuses_discs_it_cannot_read() {
-        // A grey face at 200 with a dark hole of radius 3 at (20, 20).
-        let image = GrayImage::from_fn(40, 40, |x, y| {
-            let (dx, dy) = (x as f64 - 20.0, y as f64 - 20.0);
-            image::Luma([if dx * dx + dy * dy <= 9.0 { 20 } else { 200 }])
-        });
-        let on_hole = dark_quartile(&image, Point2::new(20.0, 20.0), 5.0).expect("inside");
-        let on_face = dark_quartile(&image, Point2::new(8.0, 30.0), 5.0).expect("inside");
-        assert_eq!((on_hole, on_face), (20.0, 200.0));
-        for centre in [(2.0, 20.0), (20.0, 38.0), (f64::NAN, 20.0), (1e300, 20.0), (-1e300, f64::INFINITY)] {
-            assert_eq!(dark_quartile(&image, Point2::new(centre.0, centre.1), 5.0), None, "{centre:?}");
-        }
-        assert_eq!(dark_quartile(&image, Point2::new(20.0, 20.0), f64::INFINITY), None);
     }
 }

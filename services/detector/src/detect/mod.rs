@@ -2,10 +2,14 @@
 //! and what goes beyond it (`refine`: sub-pixel holes, and a final check that the
 //! refined holes lie where one outlet plane puts them). Here: the detector and
 //! its levels (full frame, windows, the half-resolution first look); in
-//! `holes`, each hypothesis's holes refined and the outlet verified from them;
-//! `params`, every stage's parameters; `pyramid`, the half-resolution image.
+//! `looks`, one level's stages and its later looks; `holes`, each hypothesis's
+//! holes refined and the outlet verified from them; `ground`, the ground
+//! holes' check of a half turn; `params`, every stage's parameters;
+//! `pyramid`, the half-resolution image.
 
+mod ground;
 mod holes;
+mod looks;
 mod params;
 mod pyramid;
 
@@ -13,8 +17,7 @@ pub use holes::MIN_SIGMA_OF_MEDIAN;
 pub use params::DetectorParams;
 pub use pyramid::half_resolution;
 
-use crate::candidates::find_candidates;
-use crate::hashing::{HashParams, HashTable, Intrinsics, find_outlet};
+use crate::hashing::HashTable;
 use crate::refine::HoleShape;
 use crate::template::Template;
 use crate::{Candidate, Class, grey_of};
@@ -140,12 +143,21 @@ struct Hypothesis {
     why: String,
 }
 
+thread_local! {
+    /// Hole guesses made over for a refinement: a followed outlet's in its
+    /// window, a reading's half turn.
+    static GUESS_SCRATCH: std::cell::RefCell<Vec<Option<Point2<f64>>>> =
+        const { std::cell::RefCell::new(Vec::new()) };
+}
+
 /// A template ready to detect with.
 #[derive(Debug, Clone)]
 pub struct Detector {
     template: Template,
     table: HashTable,
     outlines: Vec<HoleShape>,
+    /// The ground check's template places, found once.
+    ground_places: Option<ground::GroundPlaces>,
     params: DetectorParams,
 }
 
@@ -164,7 +176,8 @@ impl Detector {
         let classes: Vec<Class> = template.geometry.holes.iter().map(|h| Class::from(h.kind)).collect();
         let table = HashTable::new(&points, &classes, &params.hash);
         let outlines = HoleShape::us_outlines(&template.geometry);
-        Self { template, table, outlines, params }
+        let ground_places = ground::GroundPlaces::of(&template.geometry);
+        Self { template, table, outlines, ground_places, params }
     }
 
     pub fn template(&self) -> &Template {
@@ -256,7 +269,6 @@ impl Detector {
         let shift = Vector2::new(origin[0] as f64, origin[1] as f64);
         let camera = crop_camera(camera, crop, origin);
         let to_crop = translation(-shift);
-        let shifted: Vec<Option<Point2<f64>>> = guesses.iter().map(|g| Some(g - shift)).collect();
         let lens = Lens { camera: camera.as_ref() };
         let result = if guesses.len() != self.template.geometry.holes.len() {
             Err(format!(
@@ -265,7 +277,12 @@ impl Detector {
                 self.template.geometry.holes.len()
             ))
         } else {
-            self.refine(crop, &lens, &(to_crop * homography), &shifted, score).and_then(|mut d| {
+            crate::with_scratch(&GUESS_SCRATCH, |shifted| {
+                shifted.clear();
+                shifted.extend(guesses.iter().map(|g| Some(g - shift)));
+                self.refine(crop, &lens, &(to_crop * homography), shifted, score)
+            })
+            .and_then(|mut d| {
                 d.translate(shift);
                 for (hole, guess) in d.holes.iter().zip(guesses) {
                     let moved = (hole.pixel - guess).norm();
@@ -314,106 +331,17 @@ impl Detector {
         }
         let t = Instant::now();
         let _span = tracing::debug_span!("detect", width = grey.width(), height = grey.height()).entered();
-        let mut params = self.params.candidates.clone();
+        // Larger images resolve holes well; texture (carpet, paint) brings
+        // hundreds of faint blobs that a looser contrast would let in.
+        let mut min_contrast = self.params.candidates.min_contrast;
         if largest >= self.params.large_image_px {
-            // Larger images resolve holes well; texture (carpet, paint) brings
-            // hundreds of faint blobs that a looser contrast would let in.
-            params.min_contrast = params.min_contrast.max(self.params.large_image_min_contrast);
+            min_contrast = min_contrast.max(self.params.large_image_min_contrast);
         }
-        let mut candidates = find_candidates(grey, &params);
-        candidates.sort_by(|a, b| b.contrast.total_cmp(&a.contrast));
-        candidates.truncate(self.params.max_candidates);
-        times.candidates = ms_since(t);
-
-        let t = Instant::now();
-        let classifications: Vec<_> =
-            candidates.iter().map(|c| self.template.descriptor.classify_candidate(grey, c)).collect();
-        let classified: Vec<(Candidate, Class)> =
-            candidates.iter().zip(&classifications).map(|(c, k)| (*c, k.class)).collect();
-        times.classify = ms_since(t);
-
-        // What the image and the camera tell the hashing: the frame's size, and
-        // with a camera the scales an outlet 5-70 cm away can have (sqrt of the
-        // Jacobian's determinant; down to the most foreshortening hashing allows):
-        // an arm's camera sees the outlet to the last centimetres (issue 21).
-        let mut hash = self.params.hash.clone();
-        hash.image_size = Some([grey.width() as f64, grey.height() as f64]);
-        if let Some(c) = camera {
-            let f = (c.fx * c.fy).sqrt();
-            hash.scale_range = Some([f / FARTHEST_OUTLET_MM * hash.min_axis_ratio.clamp(0.0, 1.0).sqrt(), f / 50.0]);
-            hash.intrinsics = Some(Intrinsics { fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy });
-        }
-        let lens = Lens { camera };
-        let (mut detection, mut rejected) = self.search(grey, &lens, &classified, &hash, &mut times, refused);
-        if detection.is_none() && self.params.second_look_margin > 0.0 {
-            // A second look: candidates the descriptor put only narrowly in the
-            // background (shadowed or washed-out holes) count as their nearer hole
-            // class. Hashing, its significance test and the plane check still
-            // stand between them and a false alarm.
-            let margin = self.params.second_look_margin;
-            let relax = |k: &crate::descriptor::Classification| {
-                let [p, g, b] = k.class_distances;
-                match k.class {
-                    Class::Background if p.min(g) < b + margin => {
-                        if p <= g {
-                            Class::Power
-                        } else {
-                            Class::Ground
-                        }
-                    }
-                    other => other,
-                }
-            };
-            let relaxed: Vec<(Candidate, Class)> =
-                candidates.iter().zip(&classifications).map(|(c, k)| (*c, relax(k))).collect();
-            if relaxed.iter().zip(&classified).any(|(a, b)| a.1 != b.1) {
-                let (second, why) = self.search(grey, &lens, &relaxed, &hash, &mut times, refused);
-                detection = second;
-                rejected = why.or(rejected);
-            }
-            let spread = self.params.third_look_spread;
-            if detection.is_none() && spread > 0 {
-                // A third look, only after the first two found nothing (what
-                // they find stays as it was): the candidates still background
-                // at the scale their size implies, looked at a step either side.
-                let t = Instant::now();
-                let third: Vec<(Candidate, Class)> = relaxed
-                    .iter()
-                    .map(|&(c, class)| match class {
-                        Class::Background => {
-                            (c, relax(&self.template.descriptor.classify_candidate_spread(grey, &c, spread)))
-                        }
-                        class => (c, class),
-                    })
-                    .collect();
-                times.classify += ms_since(t);
-                if third.iter().zip(&relaxed).any(|(a, b)| a.1 != b.1) {
-                    let (found, why) = self.search(grey, &lens, &third, &hash, &mut times, refused);
-                    detection = found;
-                    rejected = why.or(rejected);
-                }
-            }
-            let swap = self.params.swap_look_margin;
-            if detection.is_none() && swap > 0.0 {
-                // Where the descriptor nearly could not tell the hole classes
-                // apart, the candidate also counts as the other class (a copy at
-                // the same place: one place can match only one hole).
-                let mut swapped = relaxed.clone();
-                for (&(c, class), k) in relaxed.iter().zip(&classifications) {
-                    let [p, g, _] = k.class_distances;
-                    match class {
-                        Class::Power if g < p + swap => swapped.push((c, Class::Ground)),
-                        Class::Ground if p < g + swap => swapped.push((c, Class::Power)),
-                        _ => {}
-                    }
-                }
-                if swapped.len() > relaxed.len() {
-                    let (found, why) = self.search(grey, &lens, &swapped, &hash, &mut times, refused);
-                    detection = found;
-                    rejected = why.or(rejected);
-                }
-            }
-        }
+        // The looks take this thread's vectors, and give them back before the
+        // half level's detection takes them in turn.
+        let (mut detection, mut rejected, classified) = crate::with_scratch(&looks::LEVEL_SCRATCH, |scratch| {
+            self.looks(grey, camera, min_contrast, t, &mut times, refused, scratch)
+        });
         // (Coarse first: the levels below were looked at already.)
         if detection.is_none()
             && !coarse_first
@@ -513,71 +441,6 @@ impl Detector {
             }
         };
         Some((outcome, candidates))
-    }
-
-    /// Hashing over the hole-classed candidates, then refinement and
-    /// verification: the outlet, or why the one hashing found was refused.
-    fn search(
-        &self,
-        grey: &GrayImage,
-        lens: &Lens,
-        classified: &[(Candidate, Class)],
-        hash: &HashParams,
-        times: &mut StageTimes,
-        refused: &mut Vec<Hypothesis>,
-    ) -> (Option<Detection>, Option<String>) {
-        let t = Instant::now();
-        let holes: Vec<&(Candidate, Class)> =
-            classified.iter().filter(|(_, class)| *class != Class::Background).collect();
-        let points: Vec<Point2<f64>> = holes.iter().map(|(c, _)| lens.undistort(c.centre)).collect();
-        let classes: Vec<Class> = holes.iter().map(|(_, class)| *class).collect();
-        let sizes: Vec<f64> = holes.iter().map(|(c, _)| c.size[0].max(c.size[1]) as f64).collect();
-        let found = find_outlet(&self.table, &points, &classes, &sizes, hash);
-        times.hash += ms_since(t);
-        let Some(m) = found else { return (None, None) };
-        let t = Instant::now();
-        let guesses: Vec<Option<Point2<f64>>> =
-            m.assignment.iter().map(|a| a.and_then(|k| holes.get(k).map(|(c, _)| c.centre))).collect();
-        // A later look with more candidates often finds the same reading again:
-        // verification would refuse it again, for the same reason.
-        let same = |h: &&Hypothesis| h.transform == m.transform && h.guesses == guesses && h.score == m.score;
-        if let Some(h) = refused.iter().find(same) {
-            tracing::debug!(reason = %h.why, "the same reading as one refused before");
-            return (None, Some(h.why.clone()));
-        }
-        let result = self.refine_either(grey, lens, &m.transform, &guesses, m.score);
-        if let Err(why) = &result {
-            refused.push(Hypothesis { transform: m.transform, guesses, score: m.score, why: why.clone() });
-        }
-        times.refine += ms_since(t);
-        match result {
-            Ok(d) => (Some(d), None),
-            Err(why) => {
-                tracing::debug!(reason = %why, "outlet refused by verification");
-                (None, Some(why))
-            }
-        }
-    }
-
-    /// [`Self::refine`] of the hashing's reading, or else of its half turn.
-    fn refine_either(
-        &self,
-        grey: &GrayImage,
-        lens: &Lens,
-        transform: &Matrix3<f64>,
-        guesses: &[Option<Point2<f64>>],
-        score: usize,
-    ) -> Result<Detection, String> {
-        self.refine(grey, lens, transform, guesses, score).or_else(|why| {
-            // Hashing leaves a duplex's two readings of the same power holes
-            // to the image: the half-turned one, if its ground holes say so.
-            let Some((c, image)) = self.table.half_turn() else { return Err(why) };
-            let turn = Matrix3::new(-1.0, 0.0, 2.0 * c.x, 0.0, -1.0, 2.0 * c.y, 0.0, 0.0, 1.0);
-            let turned: Vec<Option<Point2<f64>>> =
-                image.iter().map(|k| k.and_then(|k| guesses.get(k).copied().flatten())).collect();
-            self.refine(grey, lens, &(transform * turn), &turned, score)
-                .map_err(|turned_why| format!("{why}; half-turned: {turned_why}"))
-        })
     }
 }
 

@@ -34,6 +34,7 @@
 //! A false alarm costs far more than a miss: every doubt gives "none".
 
 mod fit;
+mod grid;
 mod params;
 mod search;
 mod significance;
@@ -45,8 +46,7 @@ pub use table::HashTable;
 
 use crate::Class;
 use nalgebra::{Matrix2, Matrix3, Point2, Vector2};
-use search::{Candidates, Grid, NONE, Online, Search, widest_corner};
-use std::collections::HashSet;
+use search::{Buffers, NONE, Online, Search, widest_corner};
 
 /// Most holes a template may have. The table holds every ordered triple of holes,
 /// each hashing all other holes, so its size grows as n^4 (24 holes: about a
@@ -61,7 +61,7 @@ pub const MAX_CANDIDATES: usize = 2048;
 pub const MIN_TEMPLATE_HOLES: usize = 4;
 
 /// The one outlet found.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct OutletMatch {
     /// Template (its units, mm) to image (pixels), homogeneous: a homography, or an
     /// affine transform (last row 0 0 1) when fewer than
@@ -130,6 +130,11 @@ pub(super) fn view_axis_ratio(j: &Matrix2<f64>, at: Point2<f64>, intrinsics: Opt
     axis_ratio(&(onto_ray * n))
 }
 
+thread_local! {
+    /// The search's vectors and sets, kept between calls.
+    static BUFFERS: std::cell::RefCell<Buffers> = std::cell::RefCell::new(Buffers::default());
+}
+
 /// Finds the one outlet of `table`'s template among classified candidates, or
 /// `None` (no outlet, or more than one way to see one).
 ///
@@ -148,24 +153,76 @@ pub fn find_outlet(
     sizes: &[f64],
     params: &HashParams,
 ) -> Option<OutletMatch> {
+    let mut found = OutletMatch::default();
+    find_outlet_into(table, points, classes, sizes, params, &mut found).then_some(found)
+}
+
+/// [`find_outlet`] into `found`, whose vectors are reused: true when an outlet
+/// was found (`found` holds it), false when none (`found` is then stale). The
+/// detector hashes every frame.
+pub(crate) fn find_outlet_into(
+    table: &HashTable,
+    points: &[Point2<f64>],
+    classes: &[Class],
+    sizes: &[f64],
+    params: &HashParams,
+    found: &mut OutletMatch,
+) -> bool {
+    crate::with_scratch(&BUFFERS, |buffers| search_with(table, points, classes, sizes, params, buffers, found))
+}
+
+fn search_with(
+    table: &HashTable,
+    points: &[Point2<f64>],
+    classes: &[Class],
+    sizes: &[f64],
+    params: &HashParams,
+    buffers: &mut Buffers,
+    out: &mut OutletMatch,
+) -> bool {
     let _span = tracing::debug_span!("hashing").entered();
     let holes = table.holes();
     let usable = !table.bases.is_empty() && params.hole_size > 0.0 && params.size_tolerance >= 1.0;
     if !usable {
-        return None;
+        return false;
     }
-    let cand = Candidates::new(points, classes, sizes);
+    let Buffers {
+        cand,
+        grid,
+        sorted_sizes,
+        used,
+        tried,
+        seen,
+        refined,
+        accepted,
+        accepted_assignments,
+        hood_start,
+        hood,
+        near: scratch,
+        votes,
+        touched,
+        bases_seen,
+    } = buffers;
+    cand.fill(points, classes, sizes);
     let m = cand.len();
     if m < 3 {
-        return None;
+        return false;
     }
-    let mut sorted_sizes = cand.size.clone();
+    sorted_sizes.clear();
+    sorted_sizes.extend_from_slice(&cand.size);
     sorted_sizes.sort_unstable_by(f64::total_cmp);
-    let grid = Grid::new(&cand.pos, sorted_sizes[m / 2]);
+    grid.build(&cand.pos, sorted_sizes[m / 2]);
     let mut template_class = [u8::MAX; MAX_TEMPLATE_HOLES];
     for (t, &c) in template_class.iter_mut().zip(&table.classes) {
         *t = class_index(c).unwrap_or(u8::MAX);
     }
+    used.clear();
+    used.resize(m, 0);
+    refined.clear();
+    accepted.clear();
+    accepted_assignments.clear();
+    tried.clear();
+    seen.clear();
     let mut search = Search {
         table,
         params,
@@ -174,19 +231,19 @@ pub fn find_outlet(
         holes,
         template_class,
         min_score: params.min_score(holes),
-        used: vec![0; m],
+        used,
         stamp: 0,
-        tried: HashSet::new(),
-        seen: HashSet::new(),
-        refined: Vec::new(),
-        accepted: Vec::new(),
-        accepted_assignments: Vec::new(),
+        tried,
+        seen,
+        refined,
+        accepted,
+        accepted_assignments,
         hypotheses: 0,
         half_turn: table.half_turn(),
         tests: 0,
     };
     if search.min_score > holes {
-        return None;
+        return false;
     }
 
     // Each candidate's neighbourhood: candidates within the outlet's extent at the
@@ -194,9 +251,12 @@ pub fn find_outlet(
     // first `k`, which make the online bases.
     let k_max = params.neighbours.max(2);
     let tol = params.size_tolerance;
-    let mut hood_start = vec![0u32; m + 1];
-    let mut hood: Vec<u32> = Vec::with_capacity(m * 16);
-    let mut scratch: Vec<(f64, u32)> = Vec::with_capacity(m);
+    hood_start.clear();
+    hood_start.resize(m + 1, 0);
+    hood.clear();
+    hood.reserve(m * 16);
+    scratch.clear();
+    scratch.reserve(m);
     for c in 0..m {
         let (pc, sc) = (search.cand.pos[c], search.cand.size[c]);
         let radius = table.extent * sc / params.hole_size * tol;
@@ -217,13 +277,15 @@ pub fn find_outlet(
         hood_start[c + 1] = hood.len() as u32;
     }
 
-    let mut online = Online {
-        votes: vec![0u16; table.bases.len()],
-        touched: Vec::with_capacity(table.bases.len()),
-        min_votes: params.min_votes(holes).min(u16::MAX as usize) as u16,
-    };
+    // Zero outside `vote`, as `Online` wants them.
+    votes.clear();
+    votes.resize(table.bases.len(), 0);
+    touched.clear();
+    touched.reserve(table.bases.len());
+    let mut online = Online { votes, touched, min_votes: params.min_votes(holes).min(u16::MAX as usize) as u16 };
     let sin_online = finite_or(params.min_online_angle, 0.25).clamp(0.0, std::f64::consts::FRAC_PI_2).sin().max(1e-6);
-    let mut bases_seen: HashSet<u64> = HashSet::with_capacity(m * 16);
+    bases_seen.clear();
+    bases_seen.reserve(m * 16);
     for c in 0..m {
         let list = &hood[hood_start[c] as usize..hood_start[c + 1] as usize];
         let k = k_max.min(list.len());
@@ -256,18 +318,17 @@ pub fn find_outlet(
         found = found.is_some(),
         "geometric hashing"
     );
-    let best = &search.accepted[found?];
-    let assignment = search
-        .assignment_of(found?)
-        .iter()
-        .map(|&i| if i == NONE { None } else { Some(search.cand.index[i as usize]) })
-        .collect();
-    Some(OutletMatch {
-        transform: best.transform,
-        score: best.score,
-        assignment,
-        projected: best.projection.pos[..holes].to_vec(),
-    })
+    let Some(found) = found else { return false };
+    let best = &search.accepted[found];
+    out.transform = best.transform;
+    out.score = best.score;
+    out.assignment.clear();
+    out.assignment.extend(
+        search.assignment_of(found).iter().map(|&i| if i == NONE { None } else { Some(search.cand.index[i as usize]) }),
+    );
+    out.projected.clear();
+    out.projected.extend_from_slice(&best.projection.pos[..holes]);
+    true
 }
 
 #[cfg(test)]

@@ -1,119 +1,15 @@
-//! The online half: candidates, a grid over them, the voting of online bases, and
-//! each hypothesis scored (equation (2)), refined and verified (leave-one-out).
+//! The online half: the voting of online bases, and each hypothesis scored
+//! (equation (2)), refined and verified (leave-one-out); the candidates and
+//! their grid are in `grid`.
 
 use super::fit::{apply, fit_affine, fit_homography, fit_planar_pose};
-use super::{HashParams, HashTable, MAX_CANDIDATES, MAX_TEMPLATE_HOLES, class_index, cross, view_axis_ratio};
-use crate::Class;
+use super::grid::{Candidates, Grid};
+use super::{HashParams, HashTable, MAX_TEMPLATE_HOLES, cross, view_axis_ratio};
 use nalgebra::{Matrix2, Matrix3, Point2};
 use std::collections::HashSet;
 
 /// No candidate (in assignments).
 pub(super) const NONE: u32 = u32::MAX;
-
-/// The candidates the search works on: non-background, finite centre and size.
-pub(super) struct Candidates {
-    pub(super) pos: Vec<Point2<f64>>,
-    pub(super) class: Vec<u8>,
-    pub(super) size: Vec<f64>,
-    /// Index in the caller's slices.
-    pub(super) index: Vec<usize>,
-}
-
-impl Candidates {
-    pub(super) fn new(points: &[Point2<f64>], classes: &[Class], sizes: &[f64]) -> Candidates {
-        let n = points.len().min(classes.len()).min(sizes.len());
-        let mut c = Candidates { pos: Vec::new(), class: Vec::new(), size: Vec::new(), index: Vec::new() };
-        for i in 0..n {
-            let (p, s) = (points[i], sizes[i]);
-            let Some(class) = class_index(classes[i]) else { continue };
-            if !(p.x.is_finite() && p.y.is_finite() && s.is_finite() && s > 0.0) {
-                continue;
-            }
-            c.pos.push(p);
-            c.class.push(class);
-            c.size.push(s);
-            c.index.push(i);
-            if c.pos.len() == MAX_CANDIDATES {
-                break;
-            }
-        }
-        c
-    }
-
-    pub(super) fn len(&self) -> usize {
-        self.pos.len()
-    }
-}
-
-/// A uniform grid over the candidates for radius queries.
-pub(super) struct Grid {
-    pub(super) origin: Point2<f64>,
-    pub(super) inv_cell: f64,
-    pub(super) nx: usize,
-    pub(super) ny: usize,
-    pub(super) start: Vec<u32>,
-    pub(super) items: Vec<u32>,
-}
-
-impl Grid {
-    pub(super) fn new(pos: &[Point2<f64>], cell: f64) -> Grid {
-        let (mut lo, mut hi) =
-            (Point2::new(f64::INFINITY, f64::INFINITY), Point2::new(f64::NEG_INFINITY, f64::NEG_INFINITY));
-        for p in pos {
-            lo = Point2::new(lo.x.min(p.x), lo.y.min(p.y));
-            hi = Point2::new(hi.x.max(p.x), hi.y.max(p.y));
-        }
-        if pos.is_empty() {
-            lo = Point2::origin();
-            hi = Point2::origin();
-        }
-        let span = (hi.x - lo.x).max(hi.y - lo.y);
-        let cell = cell.max(span / 128.0).max(1e-6);
-        let inv_cell = 1.0 / cell;
-        let nx = ((hi.x - lo.x) * inv_cell) as usize + 1;
-        let ny = ((hi.y - lo.y) * inv_cell) as usize + 1;
-        let mut grid = Grid { origin: lo, inv_cell, nx, ny, start: vec![0; nx * ny + 1], items: vec![0; pos.len()] };
-        let cells: Vec<usize> = pos.iter().map(|p| grid.cell_of(p)).collect();
-        for &c in &cells {
-            grid.start[c + 1] += 1;
-        }
-        for c in 0..nx * ny {
-            grid.start[c + 1] += grid.start[c];
-        }
-        let mut fill: Vec<u32> = grid.start[..nx * ny].to_vec();
-        for (i, &c) in cells.iter().enumerate() {
-            grid.items[fill[c] as usize] = i as u32;
-            fill[c] += 1;
-        }
-        grid
-    }
-
-    pub(super) fn cell_of(&self, p: &Point2<f64>) -> usize {
-        let x = (((p.x - self.origin.x) * self.inv_cell) as usize).min(self.nx - 1);
-        let y = (((p.y - self.origin.y) * self.inv_cell) as usize).min(self.ny - 1);
-        y * self.nx + x
-    }
-
-    /// Ranges of cells (x0..x1, y0..y1) that may hold points within `r` of `p`.
-    pub(super) fn cells_near(&self, p: Point2<f64>, r: f64) -> Option<[usize; 4]> {
-        let lx = (p.x - r - self.origin.x) * self.inv_cell;
-        let hx = (p.x + r - self.origin.x) * self.inv_cell;
-        let ly = (p.y - r - self.origin.y) * self.inv_cell;
-        let hy = (p.y + r - self.origin.y) * self.inv_cell;
-        // NaN fails these comparisons too.
-        if !(hx >= 0.0 && hy >= 0.0 && lx < self.nx as f64 && ly < self.ny as f64) {
-            return None;
-        }
-        // Truncation is the floor for the non-negative values kept.
-        let clamp = |v: f64, n: usize| (v.max(0.0) as usize).min(n - 1);
-        Some([clamp(lx, self.nx), clamp(hx, self.nx) + 1, clamp(ly, self.ny), clamp(hy, self.ny) + 1])
-    }
-
-    pub(super) fn cell_items(&self, x: usize, y: usize) -> &[u32] {
-        let c = y * self.nx + x;
-        &self.items[self.start[c] as usize..self.start[c + 1] as usize]
-    }
-}
 
 /// Every template hole's predicted position and apparent size (pixels).
 #[derive(Clone, Copy)]
@@ -151,29 +47,30 @@ pub(super) fn assignment_hash(a: &[u32]) -> u64 {
     h
 }
 
-/// One call's state: candidates, their grid, scratch, and what was found.
+/// One call's state: candidates, their grid, scratch, and what was found; the
+/// vectors and sets are the thread's, kept between calls ([`Buffers`]).
 pub(super) struct Search<'a> {
     pub(super) table: &'a HashTable,
     pub(super) params: &'a HashParams,
-    pub(super) cand: Candidates,
-    pub(super) grid: Grid,
+    pub(super) cand: &'a Candidates,
+    pub(super) grid: &'a Grid,
     pub(super) holes: usize,
     pub(super) template_class: [u8; MAX_TEMPLATE_HOLES],
     pub(super) min_score: usize,
     /// `used[i] == stamp`: candidate i is taken in the current scoring.
-    pub(super) used: Vec<u32>,
+    pub(super) used: &'a mut Vec<u32>,
     pub(super) stamp: u32,
     /// Affine assignments already refined.
-    pub(super) tried: HashSet<u64>,
+    pub(super) tried: &'a mut HashSet<u64>,
     /// Final assignments already accepted.
-    pub(super) seen: HashSet<u64>,
+    pub(super) seen: &'a mut HashSet<u64>,
     /// Refined assignments with enough matches, `holes` entries each.
-    pub(super) refined: Vec<u32>,
-    pub(super) accepted: Vec<Accepted>,
-    pub(super) accepted_assignments: Vec<u32>,
+    pub(super) refined: &'a mut Vec<u32>,
+    pub(super) accepted: &'a mut Vec<Accepted>,
+    pub(super) accepted_assignments: &'a mut Vec<u32>,
     pub(super) hypotheses: usize,
     /// The template's half turn (see [`HashTable::half_turn`]).
-    pub(super) half_turn: Option<(Point2<f64>, Vec<Option<usize>>)>,
+    pub(super) half_turn: Option<(Point2<f64>, &'a [Option<usize>])>,
     /// Hypotheses implicitly tested: online bases times model bases of their
     /// class signature.
     pub(super) tests: usize,
@@ -513,15 +410,36 @@ impl<'a> Search<'a> {
 }
 
 /// The voting state of the online stage.
-pub(super) struct Online {
+pub(super) struct Online<'a> {
     /// Votes per model basis; zero outside `vote`.
-    pub(super) votes: Vec<u16>,
+    pub(super) votes: &'a mut Vec<u16>,
     /// Model bases with a vote, to reset.
-    pub(super) touched: Vec<u32>,
+    pub(super) touched: &'a mut Vec<u32>,
     pub(super) min_votes: u16,
 }
 
-impl Online {
+/// The vectors and sets of a search, kept by each thread between calls: a
+/// frame hashes once or a few times, each taking some thirty of them.
+#[derive(Default)]
+pub(super) struct Buffers {
+    pub(super) cand: Candidates,
+    pub(super) grid: Grid,
+    pub(super) sorted_sizes: Vec<f64>,
+    pub(super) used: Vec<u32>,
+    pub(super) tried: HashSet<u64>,
+    pub(super) seen: HashSet<u64>,
+    pub(super) refined: Vec<u32>,
+    pub(super) accepted: Vec<Accepted>,
+    pub(super) accepted_assignments: Vec<u32>,
+    pub(super) hood_start: Vec<u32>,
+    pub(super) hood: Vec<u32>,
+    pub(super) near: Vec<(f64, u32)>,
+    pub(super) votes: Vec<u16>,
+    pub(super) touched: Vec<u32>,
+    pub(super) bases_seen: HashSet<u64>,
+}
+
+impl Online<'_> {
     /// Hashes the candidates `hashed` in the online basis `basis` (origin, a, b),
     /// counts the votes of the model bases and evaluates those with enough.
     pub(super) fn vote(&mut self, search: &mut Search, basis: [usize; 3], hashed: &[u32]) {
@@ -563,7 +481,7 @@ impl Online {
                 *count = count.saturating_add(1);
             }
         }
-        for &model in &self.touched {
+        for &model in self.touched.iter() {
             let model = model as usize;
             if self.votes[model] >= self.min_votes {
                 search.evaluate(model, basis);

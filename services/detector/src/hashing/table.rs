@@ -31,6 +31,8 @@ pub struct HashTable {
     pub(super) min_gap: f64,
     /// Mean of the holes (template units).
     pub(super) centroid: Point2<f64>,
+    /// See [`Self::half_turn`]: found once here, as every search asks for it.
+    half_turn: Option<(Point2<f64>, Vec<Option<usize>>)>,
 }
 
 impl HashTable {
@@ -56,7 +58,9 @@ impl HashTable {
             extent: 0.0,
             min_gap: 0.0,
             centroid: Point2::origin(),
+            half_turn: None,
         };
+        table.half_turn = half_turn_of(&table.points, &table.classes);
         let finite = table.points.iter().all(|p| p.x.is_finite() && p.y.is_finite());
         if !(MIN_TEMPLATE_HOLES..=MAX_TEMPLATE_HOLES).contains(&n) || !finite || range <= 0.0 {
             return table;
@@ -152,22 +156,8 @@ impl HashTable {
     /// about their centroid (every US duplex), that centroid and, per hole, the
     /// hole of its class the half turn takes it to (`None` for the ground holes,
     /// which land on the plate). `None` for any other template.
-    pub fn half_turn(&self) -> Option<(Point2<f64>, Vec<Option<usize>>)> {
-        let power: Vec<usize> = (0..self.points.len()).filter(|&i| self.classes[i] == Class::Power).collect();
-        if power.is_empty() || power.len() == self.points.len() {
-            return None;
-        }
-        let c = power.iter().fold(Vector2::zeros(), |s, &i| s + self.points[i].coords) / power.len() as f64;
-        let turned = |i: usize| Point2::from(2.0 * c - self.points[i].coords);
-        let image: Vec<Option<usize>> = (0..self.points.len())
-            .map(|i| {
-                (0..self.points.len())
-                    .find(|&k| self.classes[k] == self.classes[i] && (self.points[k] - turned(i)).norm() < 1.0)
-            })
-            .collect();
-        let symmetric = power.iter().all(|&i| image[i].is_some());
-        let grounds_apart = image.iter().enumerate().all(|(i, k)| self.classes[i] == Class::Power || k.is_none());
-        (symmetric && grounds_apart).then_some((Point2::from(c), image))
+    pub fn half_turn(&self) -> Option<(Point2<f64>, &[Option<usize>])> {
+        self.half_turn.as_ref().map(|(c, image)| (*c, image.as_slice()))
     }
 
     /// Template hole classes as given.
@@ -195,4 +185,20 @@ impl HashTable {
         let (s, e) = (self.bucket_start[bucket] as usize, self.bucket_start[bucket + 1] as usize);
         &self.bucket_bases[s..e]
     }
+}
+
+/// [`HashTable::half_turn`] of holes at `points` of `classes`.
+fn half_turn_of(points: &[Point2<f64>], classes: &[Class]) -> Option<(Point2<f64>, Vec<Option<usize>>)> {
+    let power: Vec<usize> = (0..points.len()).filter(|&i| classes[i] == Class::Power).collect();
+    if power.is_empty() || power.len() == points.len() {
+        return None;
+    }
+    let c = power.iter().fold(Vector2::zeros(), |s, &i| s + points[i].coords) / power.len() as f64;
+    let turned = |i: usize| Point2::from(2.0 * c - points[i].coords);
+    let image: Vec<Option<usize>> = (0..points.len())
+        .map(|i| (0..points.len()).find(|&k| classes[k] == classes[i] && (points[k] - turned(i)).norm() < 1.0))
+        .collect();
+    let symmetric = power.iter().all(|&i| image[i].is_some());
+    let grounds_apart = image.iter().enumerate().all(|(i, k)| classes[i] == Class::Power || k.is_none());
+    (symmetric && grounds_apart).then_some((Point2::from(c), image))
 }
