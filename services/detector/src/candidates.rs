@@ -263,7 +263,8 @@ struct Scratch {
     label: Vec<u32>,
     parent: Vec<u32>,
     blobs: Vec<Blob>,
-    alive: Vec<(u32, u32)>,
+    touched: Vec<u32>,
+    seen: Vec<u32>,
     found: Vec<Candidate>,
     grid: Vec<u32>,
 }
@@ -295,7 +296,8 @@ fn find_with(
         label,
         parent,
         blobs,
-        alive,
+        touched,
+        seen,
         found,
         grid,
     } = scratch;
@@ -322,8 +324,11 @@ fn find_with(
     blobs.clear();
     let mut forest =
         Forest { parent: std::mem::take(parent), blobs: std::mem::take(blobs), max_side: params.max_side.min(255) };
-    // Live roots, with the area they had when last scored.
-    alive.clear();
+    // The roots that runs of the band joined, and each node's area when last
+    // scored: only a component that grew at a level can give a new candidate, so
+    // only those are looked at (not every live one, band after band).
+    touched.clear();
+    seen.clear();
     found.clear();
     let runs: &[Run] = runs;
     for (b, &level) in levels.iter().enumerate() {
@@ -347,21 +352,28 @@ fn find_with(
                 touch.label(&mut forest, label[i + 1]);
             }
             let Touch { root, dead, .. } = touch;
-            let (fill, new) = forest.add(Blob::run(run.x, run.y, run.len), root, dead);
-            alive.extend(new.map(|n| (n, 0)));
+            let (fill, _) = forest.add(Blob::run(run.x, run.y, run.len), root, dead);
+            if fill != DEAD {
+                touched.push(fill);
+            }
             label[i] = fill;
         }
-        alive.retain_mut(|(node, seen)| {
-            if forest.parent[*node as usize] != *node {
-                return false;
+        // In node order, as the components were made: candidates of equal
+        // contrast keep that order through the duplicate suppression.
+        touched.sort_unstable();
+        touched.dedup();
+        seen.resize(forest.parent.len(), 0);
+        for &node in touched.iter() {
+            if forest.parent[node as usize] != node {
+                continue;
             }
-            let blob = &forest.blobs[*node as usize];
-            if blob.area != *seen {
-                *seen = blob.area;
+            let blob = &forest.blobs[node as usize];
+            if blob.area != seen[node as usize] {
+                seen[node as usize] = blob.area;
                 found.extend(score(blob, smooth, w, h, level, params, min_contrast));
             }
-            true
-        });
+        }
+        touched.clear();
     }
     *parent = forest.parent;
     *blobs = forest.blobs;
