@@ -86,3 +86,23 @@ pub(crate) fn with_scratch<T: Default + 'static, R>(
         Err(_) => f(&mut T::default()),
     })
 }
+
+/// This thread's spare value from the pool `key` (a fresh one when it holds
+/// none): for what one call may need several of at once, one per level of a
+/// nesting (each pyramid level's image), or hands on to the next call (a
+/// detection's holes). Give it back with [`give_spare`].
+pub(crate) fn take_spare<T: Default + 'static>(key: &'static std::thread::LocalKey<std::cell::RefCell<Vec<T>>>) -> T {
+    key.with(|pool| pool.try_borrow_mut().ok().and_then(|mut spares| spares.pop())).unwrap_or_default()
+}
+
+/// Puts `value` back in this thread's pool `key` for a later [`take_spare`];
+/// a full pool drops it (a pool holds what one call uses at once).
+pub(crate) fn give_spare<T: 'static>(key: &'static std::thread::LocalKey<std::cell::RefCell<Vec<T>>>, value: T) {
+    key.with(|pool| {
+        if let Ok(mut spares) = pool.try_borrow_mut()
+            && spares.len() < 8
+        {
+            spares.push(value);
+        }
+    });
+}

@@ -142,8 +142,11 @@ impl Tracker {
                 Ok(tracked) => return tracked,
                 Err(spent) => spent,
             };
-            let crop = image::imageops::crop_imm(grey, w[0], w[1], w[2], w[3]).to_image();
-            match self.search_window_only(detector, &crop, w, size, camera, time_s) {
+            // Copied into a buffer this thread keeps, not a new image each frame.
+            let searched = crate::detect::with_crop(grey, w, |crop| {
+                self.search_window_only(detector, crop, w, size, camera, time_s)
+            });
+            match searched {
                 Ok(tracked) => return tracked,
                 Err(times) => {
                     spent += times;

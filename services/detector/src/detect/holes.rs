@@ -21,6 +21,7 @@ struct RefineScratch {
     sigmas: Vec<f64>,
     fitted: Vec<(Point2<f64>, Point2<f64>, f64)>,
     seen: Vec<(Point2<f64>, Matrix2<f64>, HoleShape)>,
+    holes: Vec<DetectedHole>,
     fit: FitBuffers,
     agreement: Agreement,
 }
@@ -81,6 +82,7 @@ impl Detector {
             sigmas: fitted_sigmas,
             fitted,
             seen: outlines_seen,
+            holes,
             fit: fit_buffers,
             agreement,
         } = scratch;
@@ -220,7 +222,7 @@ impl Detector {
         }
         // Every hole must have been seen: a hole predicted from the others may lie
         // on the bare plate (the arm would go there), so the outlet is refused.
-        let mut holes = Vec::with_capacity(model.len());
+        holes.clear();
         for (i, ((t, r), hole)) in model.iter().zip(refined.iter()).zip(&self.template.geometry.holes).enumerate() {
             let kind = hole.kind.as_str();
             let (Some(pixel), Some(fit)) = (r, fits[i]) else {
@@ -279,7 +281,11 @@ impl Detector {
                 ));
             }
         }
-        Ok(Detection { holes, score, homography: h })
+        // The detection's own vector: one let go by an earlier detection.
+        let mut kept = crate::take_spare(&super::SPARE_HOLES);
+        kept.clear();
+        kept.extend_from_slice(holes);
+        Ok(Detection { holes: kept, score, homography: h })
     }
 }
 

@@ -44,8 +44,8 @@ thread_local! {
 impl Detector {
     /// The looks of [`Self::detect_level`] at this level: candidates,
     /// classes, hashing and verification, then the later looks with relaxed
-    /// classes while none is found. The outlet or why not, and the report's
-    /// candidates. `t` is when the level began.
+    /// classes while none is found. The outlet or why not; the report's
+    /// candidates go to `classified`. `t` is when the level began.
     #[allow(clippy::too_many_arguments)] // the level's inputs and what it accumulates
     pub(super) fn looks(
         &self,
@@ -56,7 +56,8 @@ impl Detector {
         times: &mut StageTimes,
         refused: &mut Vec<Hypothesis>,
         scratch: &mut LevelScratch,
-    ) -> (Option<Detection>, Option<String>, Vec<(Candidate, Class)>) {
+        classified: &mut Vec<(Candidate, Class)>,
+    ) -> (Option<Detection>, Option<String>) {
         let LevelScratch { candidates, classifications, relaxed, third, swapped } = scratch;
         find_candidates_into(grey, &self.params.candidates, min_contrast, candidates);
         // Highest contrast first, as they come (a stable sort of sorted ones
@@ -72,8 +73,9 @@ impl Detector {
         classifications.clear();
         classifications.extend(candidates.iter().map(|c| self.template.descriptor.classify_candidate(grey, c)));
         // The report's own vector.
-        let classified: Vec<(Candidate, Class)> =
-            candidates.iter().zip(classifications.iter()).map(|(c, k)| (*c, k.class)).collect();
+        classified.clear();
+        classified.extend(candidates.iter().zip(classifications.iter()).map(|(c, k)| (*c, k.class)));
+        let classified: &[(Candidate, Class)] = classified;
         times.classify = ms_since(t);
 
         // What the image and the camera tell the hashing: the frame's size, and
@@ -88,7 +90,7 @@ impl Detector {
             hash.intrinsics = Some(Intrinsics { fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy });
         }
         let lens = Lens { camera };
-        let (mut detection, mut rejected) = self.search(grey, &lens, &classified, &hash, times, refused);
+        let (mut detection, mut rejected) = self.search(grey, &lens, classified, &hash, times, refused);
         if detection.is_none() && self.params.second_look_margin > 0.0 {
             // A second look: candidates the descriptor put only narrowly in the
             // background (shadowed or washed-out holes) count as their nearer hole
@@ -110,7 +112,7 @@ impl Detector {
             };
             relaxed.clear();
             relaxed.extend(candidates.iter().zip(classifications.iter()).map(|(c, k)| (*c, relax(k))));
-            if relaxed.iter().zip(&classified).any(|(a, b)| a.1 != b.1) {
+            if relaxed.iter().zip(classified).any(|(a, b)| a.1 != b.1) {
                 let (second, why) = self.search(grey, &lens, relaxed, &hash, times, refused);
                 detection = second;
                 rejected = why.or(rejected);
@@ -157,7 +159,7 @@ impl Detector {
                 }
             }
         }
-        (detection, rejected, classified)
+        (detection, rejected)
     }
 
     /// Hashing over the hole-classed candidates, then refinement and

@@ -16,6 +16,7 @@ mod pyramid;
 pub use holes::MIN_SIGMA_OF_MEDIAN;
 pub use params::DetectorParams;
 pub use pyramid::half_resolution;
+pub(crate) use pyramid::with_crop;
 
 use crate::hashing::HashTable;
 use crate::refine::HoleShape;
@@ -69,6 +70,11 @@ pub struct Detection {
 }
 
 impl Detection {
+    /// Gives the holes' vector to this thread's next detection.
+    fn recycle(self) {
+        crate::give_spare(&SPARE_HOLES, self.holes);
+    }
+
     /// The same outlet in an image whose origin lies `shift` pixels up and left
     /// of this one's (a crop's outlet in its frame).
     fn translate(&mut self, shift: Vector2<f64>) {
@@ -117,7 +123,7 @@ impl StageTimes {
 }
 
 /// What one image gave: the outlet or none, and what led there.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct DetectReport {
     pub detection: Option<Detection>,
     /// Every candidate with its class.
@@ -145,9 +151,16 @@ struct Hypothesis {
 
 thread_local! {
     /// Hole guesses made over for a refinement: a followed outlet's in its
-    /// window, a reading's half turn.
+    /// window, a reading's half turn, a half level's outlet at full resolution.
     static GUESS_SCRATCH: std::cell::RefCell<Vec<Option<Point2<f64>>>> =
         const { std::cell::RefCell::new(Vec::new()) };
+    /// Holes' vectors of detections let go (a half level's outlet once
+    /// verified at full resolution, the last report of
+    /// [`Detector::detect_grey_into`]), for the next detection's holes.
+    static SPARE_HOLES: std::cell::RefCell<Vec<Vec<DetectedHole>>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// The reports of half levels, kept between frames: one per level in use
+    /// at once.
+    static SPARE_REPORTS: std::cell::RefCell<Vec<DetectReport>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// A template ready to detect with.
@@ -196,7 +209,16 @@ impl Detector {
     }
 
     pub fn detect_grey(&self, grey: &GrayImage, camera: Option<&CameraModel>) -> DetectReport {
-        self.detect_sized(grey, camera, grey.width().max(grey.height()))
+        let mut report = DetectReport::default();
+        self.detect_grey_into(grey, camera, &mut report);
+        report
+    }
+
+    /// [`Self::detect_grey`] into `report`, whatever it held, reusing its
+    /// vectors (the candidates, the detection's holes): a caller that keeps
+    /// its report takes nothing from the heap per frame in the steady state.
+    pub fn detect_grey_into(&self, grey: &GrayImage, camera: Option<&CameraModel>, report: &mut DetectReport) {
+        self.detect_level(grey, camera, grey.width().max(grey.height()), &mut Vec::new(), report);
     }
 
     /// Looks for the outlet in `window` (`[x, y, width, height]` pixels, clipped
@@ -217,8 +239,8 @@ impl Detector {
                 rejected: Some("the search window is empty".into()),
             };
         }
-        let crop = image::imageops::crop_imm(grey, x, y, cw, ch).to_image();
-        self.detect_crop(&crop, [x, y], [w, h], camera)
+        // Copied into a buffer this thread keeps, not a new image each search.
+        pyramid::with_crop(grey, [x, y, cw, ch], |crop| self.detect_crop(crop, [x, y], [w, h], camera))
     }
 
     /// [`Self::detect_window`] on the window's pixels alone: `crop` is the part
@@ -232,7 +254,8 @@ impl Detector {
         camera: Option<&CameraModel>,
     ) -> DetectReport {
         let camera = crop_camera(camera, crop, origin);
-        let mut report = self.detect_sized(crop, camera.as_ref(), frame_size[0].max(frame_size[1]));
+        let mut report = DetectReport::default();
+        self.detect_level(crop, camera.as_ref(), frame_size[0].max(frame_size[1]), &mut Vec::new(), &mut report);
         let shift = Vector2::new(origin[0] as f64, origin[1] as f64);
         if let Some(d) = report.detection.as_mut() {
             d.translate(shift);
@@ -303,28 +326,35 @@ impl Detector {
         }
     }
 
-    /// [`Self::detect_grey`], with the size-dependent choices made for an image
-    /// whose larger side is `largest` (this one, or the frame it was cut from).
-    fn detect_sized(&self, grey: &GrayImage, camera: Option<&CameraModel>, largest: u32) -> DetectReport {
-        self.detect_level(grey, camera, largest, &mut Vec::new())
-    }
-
-    /// [`Self::detect_sized`], also giving the hypotheses that hashing found in
-    /// this image and its verification here refused (`refused`).
+    /// [`Self::detect_grey_into`], with the size-dependent choices made for an
+    /// image whose larger side is `largest` (this one, or the frame it was cut
+    /// from), also giving the hypotheses that hashing found in this image and
+    /// its verification here refused (`refused`).
     fn detect_level(
         &self,
         grey: &GrayImage,
         camera: Option<&CameraModel>,
         largest: u32,
         refused: &mut Vec<Hypothesis>,
-    ) -> DetectReport {
+        report: &mut DetectReport,
+    ) {
+        if let Some(old) = report.detection.take() {
+            old.recycle();
+        }
+        report.rejected = None;
         let mut times = StageTimes::default();
         let coarse_first = self.params.coarse_first_px > 0 && largest >= self.params.coarse_first_px;
-        if coarse_first && let Some((half, candidates)) = self.at_half_resolution(grey, camera, largest, &mut times) {
+        if coarse_first
+            && let Some(half) = self.at_half_resolution(grey, camera, largest, &mut times, Some(&mut report.candidates))
+        {
             match half {
-                Ok(found) => return DetectReport { detection: Some(found), candidates, times, rejected: None },
+                Ok(found) => {
+                    (report.detection, report.times) = (Some(found), times);
+                    return;
+                }
                 Err(rejected) if !self.params.full_after_coarse(camera) => {
-                    return DetectReport { detection: None, candidates, times, rejected };
+                    (report.rejected, report.times) = (rejected, times);
+                    return;
                 }
                 Err(_) => {}
             }
@@ -339,15 +369,16 @@ impl Detector {
         }
         // The looks take this thread's vectors, and give them back before the
         // half level's detection takes them in turn.
-        let (mut detection, mut rejected, classified) = crate::with_scratch(&looks::LEVEL_SCRATCH, |scratch| {
-            self.looks(grey, camera, min_contrast, t, &mut times, refused, scratch)
+        let classified = &mut report.candidates;
+        let (mut detection, mut rejected) = crate::with_scratch(&looks::LEVEL_SCRATCH, |scratch| {
+            self.looks(grey, camera, min_contrast, t, &mut times, refused, scratch, classified)
         });
         // (Coarse first: the levels below were looked at already.)
         if detection.is_none()
             && !coarse_first
             && self.params.pyramid_min_px > 0
             && largest >= self.params.pyramid_min_px
-            && let Some((half, _)) = self.at_half_resolution(grey, camera, largest, &mut times)
+            && let Some(half) = self.at_half_resolution(grey, camera, largest, &mut times, None)
         {
             match half {
                 Ok(found) => detection = Some(found),
@@ -357,42 +388,51 @@ impl Detector {
         if detection.is_some() {
             rejected = None;
         }
-        DetectReport { detection, candidates: classified, times, rejected }
+        (report.detection, report.times, report.rejected) = (detection, times, rejected);
     }
 
     /// The outlet found in the image at half resolution (each level of a pyramid
     /// in turn, while nothing is found), in this image's pixels; `Err` with why
-    /// not. None when the half image or its camera cannot be made.
+    /// not. The level's candidates, in this image's pixels, go to `candidates`
+    /// when given. None when the half image or its camera cannot be made.
     fn at_half_resolution(
         &self,
         grey: &GrayImage,
         camera: Option<&CameraModel>,
         largest: u32,
         times: &mut StageTimes,
-    ) -> Option<(LevelOutcome, Vec<(Candidate, Class)>)> {
-        let half = half_resolution(grey)?;
-        let half_camera = match camera {
-            Some(c) => Some(half_camera(c, half.width(), half.height())?),
-            None => None,
-        };
+        candidates: Option<&mut Vec<(Candidate, Class)>>,
+    ) -> Option<LevelOutcome> {
+        // The half image and its level's report are this thread's, kept
+        // between frames (one of each per level in use at once).
+        let mut report = crate::take_spare(&SPARE_REPORTS);
         let mut refused = Vec::new();
-        let report = self.detect_level(&half, half_camera.as_ref(), largest / 2, &mut refused);
+        let looked = pyramid::with_half_resolution(grey, |half| {
+            let half_camera = match camera {
+                Some(c) => Some(half_camera(c, half.width(), half.height())?),
+                None => None,
+            };
+            self.detect_level(half, half_camera.as_ref(), largest / 2, &mut refused, &mut report);
+            Some(())
+        });
+        if looked.flatten().is_none() {
+            crate::give_spare(&SPARE_REPORTS, report);
+            return None;
+        }
         *times += report.times;
         // OpenCV pixel centres: full = 2 half + 0.5, in the image as captured
         // and in undistorted pixels alike (the camera is scaled the same way).
         let up = Matrix3::new(2.0, 0.0, 0.5, 0.0, 2.0, 0.5, 0.0, 0.0, 1.0);
         let to_full = |p: Point2<f64>| Point2::new(2.0 * p.x + 0.5, 2.0 * p.y + 0.5);
-        // The level's candidates in this image's pixels.
-        let candidates = report
-            .candidates
-            .iter()
-            .map(|(c, class)| {
+        if let Some(candidates) = candidates {
+            candidates.clear();
+            candidates.extend(report.candidates.iter().map(|(c, class)| {
                 let centre = to_full(c.centre);
                 let size = [c.size[0].saturating_mul(2), c.size[1].saturating_mul(2)];
                 (Candidate { centre, size, area: c.area.saturating_mul(4), ..*c }, *class)
-            })
-            .collect();
-        let outcome = match report.detection {
+            }));
+        }
+        let outcome = match report.detection.take() {
             Some(mut d) => {
                 for h in &mut d.holes {
                     h.pixel = to_full(h.pixel);
@@ -408,8 +448,12 @@ impl Detector {
                 // that full resolution had found to lie elsewhere; without it the
                 // approaches and the Willow views lost no other find.
                 let t = Instant::now();
-                let guesses: Vec<Option<Point2<f64>>> = d.holes.iter().map(|h| Some(h.pixel)).collect();
-                let full = self.refine(grey, &Lens { camera }, &d.homography, &guesses, d.score);
+                let full = crate::with_scratch(&GUESS_SCRATCH, |guesses| {
+                    guesses.clear();
+                    guesses.extend(d.holes.iter().map(|h| Some(h.pixel)));
+                    self.refine(grey, &Lens { camera }, &d.homography, guesses, d.score)
+                });
+                d.recycle();
                 times.refine += ms_since(t);
                 full.map_err(|why| {
                     tracing::debug!(reason = %why, "half-resolution outlet refused at full resolution");
@@ -424,7 +468,7 @@ impl Detector {
             None => {
                 let t = Instant::now();
                 let lens = Lens { camera };
-                let mut outcome = Err(report.rejected);
+                let mut outcome = Err(report.rejected.take());
                 for h in &refused {
                     let guesses: Vec<Option<Point2<f64>>> = h.guesses.iter().map(|g| g.map(to_full)).collect();
                     match self.refine_either(grey, &lens, &(up * h.transform), &guesses, h.score) {
@@ -440,7 +484,8 @@ impl Detector {
                 outcome
             }
         };
-        Some((outcome, candidates))
+        crate::give_spare(&SPARE_REPORTS, report);
+        Some(outcome)
     }
 }
 

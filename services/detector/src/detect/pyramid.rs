@@ -1,20 +1,82 @@
-//! The half-resolution image and camera of the first look at large frames.
+//! The half-resolution image and camera of the first look at large frames, and
+//! the images a frame's levels and windows are made in, kept between frames.
 
 use image::GrayImage;
 use outlet_protocol::CameraModel;
 
+thread_local! {
+    /// Image buffers kept between frames: one per image in use at once (a
+    /// window's crop, each half level below it).
+    static IMAGES: std::cell::RefCell<Vec<Vec<u8>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
 /// The image at half resolution: each pixel the mean of a 2x2 block. None when
 /// the image is too small to halve.
 pub fn half_resolution(grey: &GrayImage) -> Option<GrayImage> {
+    let (w, h) = half_size(grey)?;
+    let mut out = vec![0u8; w as usize * h as usize];
+    halve_into(grey, w, &mut out);
+    GrayImage::from_raw(w, h, out)
+}
+
+/// [`half_resolution`] lent to `f`, made in one of this thread's buffers.
+pub(super) fn with_half_resolution<R>(grey: &GrayImage, f: impl FnOnce(&GrayImage) -> R) -> Option<R> {
+    let (w, h) = half_size(grey)?;
+    Some(with_image(
+        w,
+        h,
+        |out| {
+            out.resize(w as usize * h as usize, 0);
+            halve_into(grey, w, out);
+        },
+        f,
+    ))
+}
+
+/// `window` (`[x, y, width, height]`, inside `grey`) of `grey` lent to `f` as an
+/// image of its own, copied into one of this thread's buffers.
+pub(crate) fn with_crop<R>(grey: &GrayImage, window: [u32; 4], f: impl FnOnce(&GrayImage) -> R) -> R {
+    let [x, y, w, h] = window.map(|v| v as usize);
+    let stride = grey.width() as usize;
+    let raw = grey.as_raw();
+    with_image(
+        window[2],
+        window[3],
+        |out| {
+            for row in y..y + h {
+                out.extend_from_slice(&raw[row * stride + x..][..w]);
+            }
+        },
+        f,
+    )
+}
+
+/// A `width` x `height` image filled by `fill` (given an empty buffer) lent to
+/// `f`: the buffer is this thread's, kept for the next image.
+fn with_image<R>(width: u32, height: u32, fill: impl FnOnce(&mut Vec<u8>), f: impl FnOnce(&GrayImage) -> R) -> R {
+    let mut buffer = crate::take_spare(&IMAGES);
+    buffer.clear();
+    fill(&mut buffer);
+    // `fill` gives width x height pixels; were it not, an empty image would
+    // stand in (never: both callers fill the whole image).
+    let image = GrayImage::from_raw(width, height, buffer).unwrap_or_else(|| GrayImage::new(0, 0));
+    let out = f(&image);
+    crate::give_spare(&IMAGES, image.into_raw());
+    out
+}
+
+/// The half image's size, None under 16 pixels a side.
+fn half_size(grey: &GrayImage) -> Option<(u32, u32)> {
     let (w, h) = (grey.width() / 2, grey.height() / 2);
-    if w < 16 || h < 16 {
-        return None;
-    }
+    (w >= 16 && h >= 16).then_some((w, h))
+}
+
+/// Fills `out` (`w` pixels a row) with the half image of `grey`.
+fn halve_into(grey: &GrayImage, w: u32, out: &mut [u8]) {
     // Row slices, not per-pixel look-ups: on a 1567x1070 photograph the look-ups
     // cost 1 ms of a 26 ms detection (perf), the slices a fifth of that.
     let stride = grey.width() as usize;
     let raw = grey.as_raw();
-    let mut out = vec![0u8; w as usize * h as usize];
     for (y, row) in out.chunks_exact_mut(w as usize).enumerate() {
         let top = &raw[2 * y * stride..][..2 * w as usize];
         let bottom = &raw[(2 * y + 1) * stride..][..2 * w as usize];
@@ -23,7 +85,6 @@ pub fn half_resolution(grey: &GrayImage) -> Option<GrayImage> {
             *o = ((sum + 2) / 4) as u8;
         }
     }
-    GrayImage::from_raw(w, h, out)
 }
 
 /// The camera of the half-resolution image: focal lengths halved, the principal
@@ -62,5 +123,26 @@ mod tests {
             assert_eq!(p.0[0], ((sum + 2) / 4) as u8, "at ({x}, {y})");
         }
         assert!(half_resolution(&GrayImage::new(31, 40)).is_none(), "under 16 px a side");
+    }
+
+    #[test]
+    fn the_kept_buffers_make_the_same_images_at_any_depth() {
+        let grey = GrayImage::from_fn(97, 70, |x, y| image::Luma([((x * 31 + y * 17 + x * y) % 256) as u8]));
+        let half = half_resolution(&grey).expect("large enough");
+        for window in [[0, 0, 97, 70], [5, 3, 40, 61], [96, 69, 1, 1], [10, 10, 0, 5]] {
+            let [x, y, w, h] = window;
+            let expected = image::imageops::crop_imm(&grey, x, y, w, h).to_image();
+            // Twice: the second time in the buffers the first gave back.
+            for _ in 0..2 {
+                with_crop(&grey, window, |crop| {
+                    assert_eq!(crop, &expected, "{window:?}");
+                    // A level within a level takes a buffer of its own.
+                    let inner = with_half_resolution(&grey, |inner| assert_eq!(inner, &half));
+                    assert!(inner.is_some());
+                    assert_eq!(crop, &expected, "{window:?} after the level within");
+                });
+            }
+        }
+        assert!(with_half_resolution(&GrayImage::new(40, 31), |_| ()).is_none(), "under 16 px a side");
     }
 }
