@@ -192,7 +192,7 @@ struct Touch {
 }
 
 impl Touch {
-    #[inline]
+    #[inline(always)]
     fn label(&mut self, forest: &mut Forest, l: u32) {
         // Neighbouring runs mostly carry the same label: one look is enough.
         if l == NONE || l == self.last {
@@ -345,10 +345,12 @@ fn find_with(
                 touch.label(&mut forest, l);
             }
             let i = i as usize;
-            if i > 0 && runs[i - 1].y == run.y && runs[i - 1].x + runs[i - 1].len == run.x {
+            // A row's runs cover it in order: a run not at the row's start has its
+            // left neighbour just before it, one not at its end its right one after.
+            if run.x > 0 {
                 touch.label(&mut forest, label[i - 1]);
             }
-            if i + 1 < runs.len() && runs[i + 1].y == run.y && run.x + run.len == runs[i + 1].x {
+            if ((run.x + run.len) as usize) < w {
                 touch.label(&mut forest, label[i + 1]);
             }
             let Touch { root, dead, .. } = touch;
