@@ -155,31 +155,31 @@ impl Forest {
     }
 
     /// Adds a run touching the live component `root` (or a dead one if `dead`): returns
-    /// the label of its pixels and, for a new component, its node.
-    fn add(&mut self, run: Blob, root: Option<u32>, dead: bool) -> (u32, Option<u32>) {
-        let (root, new) = match (dead, root) {
+    /// the label of its pixels (the component's root, a new one's node, or DEAD).
+    fn add(&mut self, run: Blob, root: Option<u32>, dead: bool) -> u32 {
+        let root = match (dead, root) {
             (true, root) => {
                 if let Some(r) = root {
                     self.parent[r as usize] = DEAD;
                 }
-                return (DEAD, None);
+                return DEAD;
             }
             (false, Some(r)) => {
                 self.blobs[r as usize].merge(&run);
-                (r, None)
+                r
             }
             (false, None) => {
                 let node = self.parent.len() as u32;
                 self.parent.push(node);
                 self.blobs.push(run);
-                (node, Some(node))
+                node
             }
         };
         if self.blobs[root as usize].size().into_iter().any(|s| s > self.max_side) {
             self.parent[root as usize] = DEAD;
-            return (DEAD, None);
+            return DEAD;
         }
-        (root, new)
+        root
     }
 }
 
@@ -354,7 +354,7 @@ fn find_with(
                 touch.label(&mut forest, label[i + 1]);
             }
             let Touch { root, dead, .. } = touch;
-            let (fill, _) = forest.add(Blob::run(run.x, run.y, run.len), root, dead);
+            let fill = forest.add(Blob::run(run.x, run.y, run.len), root, dead);
             if fill != DEAD {
                 touched.push(fill);
             }
