@@ -270,3 +270,68 @@ fn an_outlet_the_half_level_refuses_is_verified_at_full_resolution() {
         assert!(e < 5.0, "hole {k}: {e:.2} px from the label");
     }
 }
+
+/// The messages of the debug events a detection emits, in order.
+#[derive(Default)]
+struct EventLog(std::sync::Mutex<Vec<String>>);
+
+struct Message<'a>(&'a mut String);
+
+impl tracing::field::Visit for Message<'_> {
+    fn record_debug(&mut self, field: &tracing::field::Field, value: &dyn std::fmt::Debug) {
+        if field.name() == "message" {
+            *self.0 = format!("{value:?}");
+        }
+    }
+}
+
+impl tracing::Subscriber for EventLog {
+    fn enabled(&self, _: &tracing::Metadata<'_>) -> bool {
+        true
+    }
+    fn new_span(&self, _: &tracing::span::Attributes<'_>) -> tracing::span::Id {
+        tracing::span::Id::from_u64(1)
+    }
+    fn record(&self, _: &tracing::span::Id, _: &tracing::span::Record<'_>) {}
+    fn record_follows_from(&self, _: &tracing::span::Id, _: &tracing::span::Id) {}
+    fn event(&self, event: &tracing::Event<'_>) {
+        let mut message = String::new();
+        event.record(&mut Message(&mut message));
+        if let Ok(mut log) = self.0.lock() {
+            log.push(message);
+        }
+    }
+    fn enter(&self, _: &tracing::span::Id) {}
+    fn exit(&self, _: &tracing::span::Id) {}
+}
+
+/// A reading the half level refuses is verified at full resolution as soon as
+/// it is refused, and once it stands the half level looks no further: no
+/// later hashing, at the half level or below it.
+#[test]
+fn a_reading_verified_at_full_resolution_ends_the_half_levels_looks() {
+    let (template, _) = willow_template();
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/willow-2x2/V004_view16_crop.png");
+    let grey = grey_of(&image::open(path).expect("fixture").to_rgb8());
+    let (origin, frame) = ([1080, 350], [1567, 1070]);
+    let camera = CameraModel::new(1567, 1070, [1534.7095, 1534.7095, 783.0, 534.5], [0.0; 5]).expect("camera");
+    let params = DetectorParams { full_after_coarse_below_pitch_px: f64::MIN_POSITIVE, ..DetectorParams::default() };
+    let detector = Detector::new(template, params);
+    let log = std::sync::Arc::new(EventLog::default());
+    let report =
+        tracing::subscriber::with_default(log.clone(), || detector.detect_crop(&grey, origin, frame, Some(&camera)));
+    assert!(report.detection.is_some(), "not found: {:?}", report.rejected);
+    let log = log.0.lock().expect("log").clone();
+    let verified = log
+        .iter()
+        .position(|m| m == "refused at half resolution, verified at full resolution")
+        .unwrap_or_else(|| panic!("no reading verified at full resolution: {log:?}"));
+    // The half level logs its refusal once the full level has answered: the
+    // reading was verified at full resolution as it was refused, not after
+    // the half level's later looks.
+    assert_eq!(log.get(verified + 1).map(String::as_str), Some("outlet refused by verification"), "{log:?}");
+    assert!(
+        !log[verified..].iter().any(|m| m == "geometric hashing"),
+        "the half level hashed again after its reading stood at full resolution: {log:?}"
+    );
+}

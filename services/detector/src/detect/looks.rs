@@ -3,7 +3,7 @@
 //! while nothing is found. The vectors of each step are the thread's, kept
 //! between frames.
 
-use super::{Detection, Detector, FARTHEST_OUTLET_MM, Hypothesis, Lens, StageTimes, ms_since};
+use super::{Detection, Detector, FARTHEST_OUTLET_MM, Hypothesis, Lens, Refusals, StageTimes, ms_since};
 use crate::candidates::find_candidates_into;
 use crate::descriptor::Classification;
 use crate::hashing::{HashParams, Intrinsics, OutletMatch, find_outlet_into};
@@ -54,7 +54,7 @@ impl Detector {
         min_contrast: f32,
         t: Instant,
         times: &mut StageTimes,
-        refused: &mut Vec<Hypothesis>,
+        refused: &mut Refusals,
         scratch: &mut LevelScratch,
         classified: &mut Vec<(Candidate, Class)>,
     ) -> (Option<Detection>, Option<String>) {
@@ -91,7 +91,8 @@ impl Detector {
         }
         let lens = Lens { camera };
         let (mut detection, mut rejected) = self.search(grey, &lens, classified, &hash, times, refused);
-        if detection.is_none() && self.params.second_look_margin > 0.0 {
+        // A reading the level above verified (`Refusals::escalate`) ends the looks.
+        if detection.is_none() && refused.escalated.is_none() && self.params.second_look_margin > 0.0 {
             // A second look: candidates the descriptor put only narrowly in the
             // background (shadowed or washed-out holes) count as their nearer hole
             // class. Hashing, its significance test and the plane check still
@@ -118,7 +119,7 @@ impl Detector {
                 rejected = why.or(rejected);
             }
             let spread = self.params.third_look_spread;
-            if detection.is_none() && spread > 0 {
+            if detection.is_none() && refused.escalated.is_none() && spread > 0 {
                 // A third look, only after the first two found nothing (what
                 // they find stays as it was): the candidates still background
                 // at the scale their size implies, looked at a step either side.
@@ -138,7 +139,7 @@ impl Detector {
                 }
             }
             let swap = self.params.swap_look_margin;
-            if detection.is_none() && swap > 0.0 {
+            if detection.is_none() && refused.escalated.is_none() && swap > 0.0 {
                 // Where the descriptor nearly could not tell the hole classes
                 // apart, the candidate also counts as the other class (a copy at
                 // the same place: one place can match only one hole).
@@ -171,7 +172,7 @@ impl Detector {
         classified: &[(Candidate, Class)],
         hash: &HashParams,
         times: &mut StageTimes,
-        refused: &mut Vec<Hypothesis>,
+        refused: &mut Refusals,
     ) -> (Option<Detection>, Option<String>) {
         crate::with_scratch(&SEARCH_SCRATCH, |scratch| {
             self.search_with(grey, lens, classified, hash, times, refused, scratch)
@@ -186,7 +187,7 @@ impl Detector {
         classified: &[(Candidate, Class)],
         hash: &HashParams,
         times: &mut StageTimes,
-        refused: &mut Vec<Hypothesis>,
+        refused: &mut Refusals,
         scratch: &mut SearchScratch,
     ) -> (Option<Detection>, Option<String>) {
         let t = Instant::now();
@@ -210,14 +211,18 @@ impl Detector {
         // A later look with more candidates often finds the same reading again:
         // verification would refuse it again, for the same reason.
         let same = |h: &&Hypothesis| h.transform == m.transform && h.guesses == *guesses && h.score == m.score;
-        if let Some(h) = refused.iter().find(same) {
+        if let Some(h) = refused.list.iter().find(same) {
             tracing::debug!(reason = %h.why, "the same reading as one refused before");
             return (None, Some(h.why.clone()));
         }
         let result = self.refine_either(grey, lens, &m.transform, guesses, m.score);
         if let Err(why) = &result {
             let guesses = guesses.clone();
-            refused.push(Hypothesis { transform: m.transform, guesses, score: m.score, why: why.clone() });
+            let hypothesis = Hypothesis { transform: m.transform, guesses, score: m.score, why: why.clone() };
+            if let Some(escalate) = refused.escalate.as_mut() {
+                refused.escalated = escalate(&hypothesis);
+            }
+            refused.list.push(hypothesis);
         }
         times.refine += ms_since(t);
         match result {

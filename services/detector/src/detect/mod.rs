@@ -149,6 +149,22 @@ struct Hypothesis {
     why: String,
 }
 
+/// A finer level's verification of a refused reading: the outlet in its
+/// pixels, or `None`.
+type Escalate<'a> = &'a mut dyn FnMut(&Hypothesis) -> Option<Detection>;
+
+/// The readings a level's verification refused, and what the level above
+/// does with each as it is refused.
+#[derive(Default)]
+struct Refusals<'a> {
+    list: Vec<Hypothesis>,
+    /// Given by the level above (a half level's caller): the reading verified
+    /// at that level's resolution, the outlet in its pixels or `None`.
+    escalate: Option<Escalate<'a>>,
+    /// What `escalate` verified: it ends this level's looks.
+    escalated: Option<Detection>,
+}
+
 thread_local! {
     /// Hole guesses made over for a refinement: a followed outlet's in its
     /// window, a reading's half turn, a half level's outlet at full resolution.
@@ -218,7 +234,7 @@ impl Detector {
     /// vectors (the candidates, the detection's holes): a caller that keeps
     /// its report takes nothing from the heap per frame in the steady state.
     pub fn detect_grey_into(&self, grey: &GrayImage, camera: Option<&CameraModel>, report: &mut DetectReport) {
-        self.detect_level(grey, camera, grey.width().max(grey.height()), &mut Vec::new(), report);
+        self.detect_level(grey, camera, grey.width().max(grey.height()), &mut Refusals::default(), report);
     }
 
     /// Looks for the outlet in `window` (`[x, y, width, height]` pixels, clipped
@@ -255,7 +271,13 @@ impl Detector {
     ) -> DetectReport {
         let camera = crop_camera(camera, crop, origin);
         let mut report = DetectReport::default();
-        self.detect_level(crop, camera.as_ref(), frame_size[0].max(frame_size[1]), &mut Vec::new(), &mut report);
+        self.detect_level(
+            crop,
+            camera.as_ref(),
+            frame_size[0].max(frame_size[1]),
+            &mut Refusals::default(),
+            &mut report,
+        );
         let shift = Vector2::new(origin[0] as f64, origin[1] as f64);
         if let Some(d) = report.detection.as_mut() {
             d.translate(shift);
@@ -329,13 +351,14 @@ impl Detector {
     /// [`Self::detect_grey_into`], with the size-dependent choices made for an
     /// image whose larger side is `largest` (this one, or the frame it was cut
     /// from), also giving the hypotheses that hashing found in this image and
-    /// its verification here refused (`refused`).
+    /// its verification here refused (`refused`), each passed on as it is
+    /// refused to the level above when that asks for it.
     fn detect_level(
         &self,
         grey: &GrayImage,
         camera: Option<&CameraModel>,
         largest: u32,
-        refused: &mut Vec<Hypothesis>,
+        refused: &mut Refusals,
         report: &mut DetectReport,
     ) {
         if let Some(old) = report.detection.take() {
@@ -373,8 +396,10 @@ impl Detector {
         let (mut detection, mut rejected) = crate::with_scratch(&looks::LEVEL_SCRATCH, |scratch| {
             self.looks(grey, camera, min_contrast, t, &mut times, refused, scratch, classified)
         });
-        // (Coarse first: the levels below were looked at already.)
+        // (Coarse first: the levels below were looked at already. A reading
+        // the level above verified ends the search.)
         if detection.is_none()
+            && refused.escalated.is_none()
             && !coarse_first
             && self.params.pyramid_min_px > 0
             && largest >= self.params.pyramid_min_px
@@ -406,7 +431,32 @@ impl Detector {
         // The half image and its level's report are this thread's, kept
         // between frames (one of each per level in use at once).
         let mut report = crate::take_spare(&SPARE_REPORTS);
-        let mut refused = Vec::new();
+        // OpenCV pixel centres: full = 2 half + 0.5, in the image as captured
+        // and in undistorted pixels alike (the camera is scaled the same way).
+        let up = Matrix3::new(2.0, 0.0, 0.5, 0.0, 2.0, 0.5, 0.0, 0.0, 1.0);
+        let to_full = |p: Point2<f64>| Point2::new(2.0 * p.x + 0.5, 2.0 * p.y + 0.5);
+        let lens = Lens { camera };
+        // What hashing finds at the half level but its verification refuses
+        // (most often a faint hole: a real ground hole of a few pixels at half
+        // size) is verified at once at full resolution, where the hole's
+        // outline has four times the pixels; the full level's verification
+        // decides, as for any outlet. Once one stands, the half level looks no
+        // further (on V017, a steep Willow photograph, its three later looks
+        // and the quarter level took 9 of 20 ms).
+        let mut verify_at_full = |h: &Hypothesis| {
+            let guesses: Vec<Option<Point2<f64>>> = h.guesses.iter().map(|g| g.map(to_full)).collect();
+            match self.refine_either(grey, &lens, &(up * h.transform), &guesses, h.score) {
+                Ok(found) => {
+                    tracing::debug!("refused at half resolution, verified at full resolution");
+                    Some(found)
+                }
+                Err(why) => {
+                    tracing::debug!(reason = %why, "refused at half and at full resolution");
+                    None
+                }
+            }
+        };
+        let mut refused = Refusals { escalate: Some(&mut verify_at_full), ..Refusals::default() };
         let looked = pyramid::with_half_resolution(grey, |half| {
             let half_camera = match camera {
                 Some(c) => Some(half_camera(c, half.width(), half.height())?),
@@ -415,15 +465,12 @@ impl Detector {
             self.detect_level(half, half_camera.as_ref(), largest / 2, &mut refused, &mut report);
             Some(())
         });
+        let escalated = refused.escalated.take();
         if looked.flatten().is_none() {
             crate::give_spare(&SPARE_REPORTS, report);
             return None;
         }
         *times += report.times;
-        // OpenCV pixel centres: full = 2 half + 0.5, in the image as captured
-        // and in undistorted pixels alike (the camera is scaled the same way).
-        let up = Matrix3::new(2.0, 0.0, 0.5, 0.0, 2.0, 0.5, 0.0, 0.0, 1.0);
-        let to_full = |p: Point2<f64>| Point2::new(2.0 * p.x + 0.5, 2.0 * p.y + 0.5);
         if let Some(candidates) = candidates {
             candidates.clear();
             candidates.extend(report.candidates.iter().map(|(c, class)| {
@@ -460,29 +507,8 @@ impl Detector {
                     Some(format!("found at half resolution, refused at full resolution: {why}"))
                 })
             }
-            // What hashing found here but the half level's verification refused
-            // (most often a faint hole: a real ground hole of a few pixels at
-            // half size) is verified again at full resolution, where the
-            // hole's outline has four times the pixels; the full level's
-            // verification decides, as for any outlet.
-            None => {
-                let t = Instant::now();
-                let lens = Lens { camera };
-                let mut outcome = Err(report.rejected.take());
-                for h in &refused {
-                    let guesses: Vec<Option<Point2<f64>>> = h.guesses.iter().map(|g| g.map(to_full)).collect();
-                    match self.refine_either(grey, &lens, &(up * h.transform), &guesses, h.score) {
-                        Ok(found) => {
-                            tracing::debug!("refused at half resolution, verified at full resolution");
-                            outcome = Ok(found);
-                            break;
-                        }
-                        Err(why) => tracing::debug!(reason = %why, "refused at half and at full resolution"),
-                    }
-                }
-                times.refine += ms_since(t);
-                outcome
-            }
+            // Verified at full resolution as it was refused (`verify_at_full`).
+            None => escalated.ok_or_else(|| report.rejected.take()),
         };
         crate::give_spare(&SPARE_REPORTS, report);
         Some(outcome)
