@@ -84,7 +84,10 @@ pub struct RefineParams {
     pub clipped_face_level: f64,
     /// See [`Self::clipped_face_level`]. On a rendered approach with a
     /// receptacle in a specular highlight, its slots showed 11-19 grey levels
-    /// below a face at 255 (relative 0.044-0.074) while clearly there.
+    /// below a face at 255 (relative 0.044-0.074) while clearly there; in Table
+    /// I's specular2x2 view 1 a slot 6 levels below it (0.024) was under half of
+    /// the faint look's 0.05, and a clipped face has no noise to be taken for an
+    /// opening: 0.4 (0.5 before).
     pub clipped_contrast_share: f64,
     /// The centre's standard deviation (pixels per axis) is never taken below
     /// this: the outline model itself is no better than that on real holes.
@@ -165,7 +168,7 @@ impl Default for RefineParams {
             max_shift_px: 3.0,
             min_relative_contrast: 0.12,
             clipped_face_level: 250.0,
-            clipped_contrast_share: 0.5,
+            clipped_contrast_share: 0.4,
             min_sigma_px: 0.02,
             sigma_scale: 3.0,
             max_pixels: 3000,

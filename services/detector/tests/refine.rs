@@ -110,6 +110,25 @@ fn a_faint_slot_counts_on_a_clipped_face_but_not_on_a_lit_one() {
     assert!(refine_hole(&clipped, guess, &j, outline, &strict).is_none());
 }
 
+/// The faint second look (relative contrast 0.05) on a clipped face asks 0.4 of
+/// it: a slot 6 grey levels below 255 (0.024) counts there, as a washed-out
+/// slot in a rendered highlight did; on a lit face at 200 the same 6 levels
+/// (0.03) do not.
+#[test]
+fn a_washed_out_slot_counts_in_the_faint_look_on_a_clipped_face() {
+    let outline = outlet_detector::refine::HoleShape::Slot { width_mm: 2.0, length_mm: 7.1 };
+    let j = nalgebra::Matrix2::new(4.0, 0.0, 0.0, 4.0);
+    let faint = RefineParams { min_relative_contrast: 0.05, ..RefineParams::default() };
+    let (clipped, centre) = slot_on_face(255, 6);
+    let guess = centre + nalgebra::Vector2::new(0.4, -0.3);
+    let fit = refine_hole(&clipped, guess, &j, outline, &faint).expect("the washed-out slot is found");
+    assert!((fit.centre - centre).norm() < 0.3, "centre {:?} against {centre:?}", fit.centre);
+    let (lit, _) = slot_on_face(200, 6);
+    assert!(refine_hole(&lit, guess, &j, outline, &faint).is_none(), "6 levels on a lit face is not an opening");
+    let half = RefineParams { clipped_contrast_share: 0.5, ..faint };
+    assert!(refine_hole(&clipped, guess, &j, outline, &half).is_none(), "half the faint contrast refuses it");
+}
+
 /// Close up, the fit's margin of face around a hole is tens of pixels: a hole
 /// near the image's edge, wholly inside it, is fitted from the face pixels the
 /// image has (a 2x2 at 10 cm lost its top slot that way at every camera); a
