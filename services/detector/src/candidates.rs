@@ -65,6 +65,10 @@ impl CandidateParams {
 /// Candidates closer than this (pixels) are one blob seen at several levels.
 pub const DUPLICATE_RADIUS_PX: f64 = 2.0;
 
+/// Set in a node's `seen` area while it is in the band's touched list: a live
+/// component's area is at most 255 x 255, far below it.
+const PUSHED: u32 = 1 << 31;
+
 /// Label of a pixel not yet added.
 const NONE: u32 = u32::MAX;
 /// Label of a pixel (or parent of a root) in a component too large to be a hole.
@@ -355,17 +359,26 @@ fn find_with(
             }
             let Touch { root, dead, .. } = touch;
             let fill = forest.add(Blob::run(run.x, run.y, run.len), root, dead);
+            // Each root once a band (the neighbouring runs of a component
+            // mostly share it): `seen`'s spare high bit marks it pushed.
             if fill != DEAD {
-                touched.push(fill);
+                if seen.len() < forest.parent.len() {
+                    seen.resize(forest.parent.len(), 0);
+                }
+                let mark = &mut seen[fill as usize];
+                if *mark & PUSHED == 0 {
+                    *mark |= PUSHED;
+                    touched.push(fill);
+                }
             }
             label[i] = fill;
         }
         // In node order, as the components were made: candidates of equal
         // contrast keep that order through the duplicate suppression.
         touched.sort_unstable();
-        touched.dedup();
         seen.resize(forest.parent.len(), 0);
         for &node in touched.iter() {
+            seen[node as usize] &= !PUSHED;
             if forest.parent[node as usize] != node {
                 continue;
             }
