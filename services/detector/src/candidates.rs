@@ -376,7 +376,6 @@ fn find_with(
         // In node order, as the components were made: candidates of equal
         // contrast keep that order through the duplicate suppression.
         touched.sort_unstable();
-        seen.resize(forest.parent.len(), 0);
         for &node in touched.iter() {
             seen[node as usize] &= !PUSHED;
             if forest.parent[node as usize] != node {
@@ -420,11 +419,7 @@ fn runs_of_rows(
     band_row: &mut Vec<u8>,
     at: &mut Vec<u32>,
 ) {
-    let count = levels.len() as u8;
-    let mut band_of = [count; 256];
-    for (v, band) in band_of.iter_mut().enumerate().take(top as usize) {
-        *band = levels.partition_point(|&l| l as usize <= v) as u8;
-    }
+    let band_of = band_table(levels, top);
     let uniform = UniformBands::of(levels, &band_of);
     runs.clear();
     bands.clear();
@@ -511,6 +506,16 @@ fn runs_of_rows(
         std::mem::swap(&mut prev, &mut cur);
     }
     row_start.push(runs.len() as u32);
+}
+
+/// The band of every grey value: how many of `levels` (sorted) lie at or below
+/// it, and `levels.len()` from `top` (the last level) on.
+fn band_table(levels: &[u8], top: u8) -> [u8; 256] {
+    let mut band_of = [levels.len() as u8; 256];
+    for (v, band) in band_of.iter_mut().enumerate().take(top as usize) {
+        *band = levels.partition_point(|&l| l as usize <= v) as u8;
+    }
+    band_of
 }
 
 /// Threshold bands of evenly spaced levels `first, first + step, ...` by
@@ -668,11 +673,7 @@ mod tests {
     use super::*;
 
     fn table(levels: &[u8]) -> [u8; 256] {
-        let mut t = [levels.len() as u8; 256];
-        for (v, band) in t.iter_mut().enumerate().take(*levels.last().unwrap() as usize) {
-            *band = levels.partition_point(|&l| l as usize <= v) as u8;
-        }
-        t
+        band_table(levels, *levels.last().expect("levels"))
     }
 
     #[test]
